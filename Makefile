@@ -1,0 +1,29 @@
+# bogiemon: `make test` and (with the daemon) `make demo` work on a fresh clone with python3 and make.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-stamp
+
+.PHONY: test install bench bench-core clean
+
+# The venv is (re)built when missing or when pyproject.toml changes.
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# pytest exits 5 when it collects no tests: that is a failure here, never a pass.
+test: $(STAMP)
+	$(PY) -m pytest; status=$$?; \
+	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
+	exit $$status
+
+bench-core: $(STAMP)
+	$(PY) bench/bench_core.py
+
+bench: bench-core
+
+clean:
+	rm -rf $(VENV) .pytest_cache .hypothesis build *.egg-info

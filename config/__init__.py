@@ -1,0 +1,1 @@
+"""Shipped data: the default config, the DBC, vehicle parameter files (no code)."""

@@ -1,0 +1,1 @@
+"""The service and the CLI: indicators in, decisions, events and alarms out."""

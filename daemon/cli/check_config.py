@@ -1,0 +1,21 @@
+"""`bogiemon check-config FILE`: validate a config file and print it resolved, defaults filled in."""
+
+from __future__ import annotations
+
+import argparse
+
+from bogiemon.daemon import tomlout
+from bogiemon.daemon.config import load_config
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("check-config", help="validate a config file and print the resolved config")
+    p.add_argument("file", nargs="?", help="the config file (default: the shipped default config)")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load_config(args.file)
+    print(f"# {args.file or 'default config'}: valid (digest {config.digest()})")
+    print(tomlout.dumps(config.model_dump(mode="json")), end="")
+    return 0

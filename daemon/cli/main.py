@@ -1,0 +1,45 @@
+"""The `bogiemon` command: parses the command line and hands over to one module per command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from bogiemon.daemon.cli import analyze, check_config
+from bogiemon.daemon.config import ConfigError
+from bogiemon.drivers.recording import RecordingError
+
+COMMANDS = (analyze, check_config)
+# Errors a user can cause: one line on stderr and exit status 2, never a traceback.
+USER_ERRORS: tuple[type[Exception], ...] = (ConfigError, RecordingError)
+EXIT_USER_ERROR = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="bogiemon",
+        description="Condition monitoring of Y25 freight-wagon primary suspensions.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.run(args))
+    except USER_ERRORS as exc:
+        print(f"bogiemon: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except BrokenPipeError:  # e.g. `bogiemon analyze ... | head`
+        sys.stderr.close()
+        return 0
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

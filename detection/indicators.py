@@ -1,0 +1,190 @@
+"""The four fault indicators of METHOD.md, per window, from a stream of three accelerations.
+
+    I1 = std over lags -L..+L of C_BR(tau)          [(m/s^2)(rad/s^2)]
+    I2 = std over lags -L..+L of C_PR(tau)          [(rad/s^2)^2]
+    I3 = C_PR(0) of aP, aR low-passed (10 Hz)        [(rad/s^2)^2]
+    I4 = C_PR(0) of the unfiltered aP, aR            [(rad/s^2)^2]
+
+"Unfiltered" means after the gravity/drift high-pass only (conditioning.py). The standard
+deviation over lags is the population one (ddof = 0) over the 2K + 1 lag samples.
+
+The normalised variants divide each by the RMS values of the two signals over the same window
+(sigma_x^2 = C_xx(0); the high-passed signals have zero mean, so this is their standard
+deviation), so I3n and I4n are correlation coefficients in [-1, 1] and I1n,
+I2n are the standard deviations of correlation-coefficient functions. They are dimensionless
+and do not scale with speed or track roughness, which scale both signals together. They are
+NaN when a signal is exactly zero over the window (a dead channel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bogiemon.detection.conditioning import StreamingSOS, butter_sos
+from bogiemon.detection.hops import HopAssembler
+from bogiemon.detection.kinematics import BogieGeometry
+from bogiemon.detection.xcorr import StreamingCrossCorrelator, WindowCorrelations
+
+
+@dataclass(frozen=True)
+class ProcessingSettings:
+    """How the accelerations are conditioned and windowed. Times in seconds, rates in hertz."""
+
+    fs_hz: float = 500.0
+    window_s: float = 60.0
+    hop_s: float = 10.0
+    max_lag_s: float = 10.0
+    highpass_hz: float = 0.5
+    highpass_order: int = 2
+    lowpass_hz: float = 10.0
+    lowpass_order: int = 4
+
+    def samples(self, duration_s: float) -> int:
+        """A duration in whole samples at fs_hz (rounded to the nearest)."""
+        return int(round(duration_s * self.fs_hz))
+
+    @property
+    def window_n(self) -> int:
+        return self.samples(self.window_s)
+
+    @property
+    def hop_n(self) -> int:
+        return self.samples(self.hop_s)
+
+    @property
+    def max_lag_n(self) -> int:
+        return self.samples(self.max_lag_s)
+
+
+@dataclass(frozen=True)
+class WindowIndicators:
+    """The indicators of one window. Times in seconds on the source's time axis."""
+
+    start_s: float
+    end_s: float
+    i1: float
+    i2: float
+    i3: float
+    i4: float
+    i1_norm: float
+    i2_norm: float
+    i3_norm: float
+    i4_norm: float
+    rms_mps2: tuple[float, float, float]  # a1, a2, a3 after the high-pass
+    rms_bounce_mps2: float
+    rms_pitch_radps2: float
+    rms_roll_radps2: float
+
+    @property
+    def raw(self) -> tuple[float, float, float, float]:
+        return (self.i1, self.i2, self.i3, self.i4)
+
+    @property
+    def normalised(self) -> tuple[float, float, float, float]:
+        return (self.i1_norm, self.i2_norm, self.i3_norm, self.i4_norm)
+
+
+# Columns of the conditioned stream fed to the correlator.
+_B, _P, _R, _P_LP, _R_LP, _A1, _A2, _A3 = range(8)
+_LAGGED_PAIRS = ((_B, _R), (_P, _R))
+_ZERO_LAG_PAIRS = (
+    (_B, _B), (_P, _P), (_R, _R),
+    (_P_LP, _R_LP), (_P_LP, _P_LP), (_R_LP, _R_LP),
+    (_A1, _A1), (_A2, _A2), (_A3, _A3),
+)  # fmt: skip
+
+
+def _ratio(num: float, den: float) -> float:
+    return num / den if den > 0.0 else float("nan")
+
+
+class IndicatorStream:
+    """Streaming detection core: (n, 3) blocks of a1, a2, a3 in m/s^2 in, WindowIndicators out.
+
+    Blocks may have any length; every hop after the first full window yields one record. Call
+    restart() after a gap: windows never span it, and the filters start afresh.
+    """
+
+    def __init__(self, settings: ProcessingSettings, geometry: BogieGeometry, start_s: float = 0.0) -> None:
+        if settings.window_n % settings.hop_n:
+            raise ValueError(f"window_s ({settings.window_s}) must be a whole number of hops ({settings.hop_s} s)")
+        self.settings = settings
+        self.geometry = geometry
+        self._to_modal = geometry.modal_matrix().T
+        self._highpass = StreamingSOS(
+            butter_sos(settings.highpass_order, settings.highpass_hz, settings.fs_hz, "highpass"),
+            n_channels=3,
+            start_at_steady_state=True,
+        )
+        self._lowpass = StreamingSOS(
+            butter_sos(settings.lowpass_order, settings.lowpass_hz, settings.fs_hz, "lowpass"),
+            n_channels=2,
+            start_at_steady_state=False,
+        )
+        # Whole hops go through the filters: a few calls per hop, whatever the sources' block size.
+        self._hops = HopAssembler(settings.hop_n, 3)
+        self._stream = np.empty((settings.hop_n, 8))
+        self._correlator = StreamingCrossCorrelator(
+            n_channels=8,
+            pairs=_LAGGED_PAIRS,
+            window_n=settings.window_n,
+            hop_n=settings.hop_n,
+            max_lag_n=settings.max_lag_n,
+            zero_lag_pairs=_ZERO_LAG_PAIRS,
+        )
+        self.restart(start_s)
+
+    def restart(self, start_s: float) -> None:
+        """Begin a new segment whose first sample is at start_s."""
+        self._start_s = start_s
+        self._hops.reset()
+        self._highpass.reset()
+        self._lowpass.reset()
+        self._correlator.reset()
+
+    def process(self, accel_mps2: NDArray[np.float64]) -> list[WindowIndicators]:
+        return [ind for ind, _ in self.process_with_correlations(accel_mps2)]
+
+    def process_with_correlations(
+        self, accel_mps2: NDArray[np.float64]
+    ) -> list[tuple[WindowIndicators, WindowCorrelations]]:
+        """As process(), with each window's C_BR (row 0) and C_PR (row 1) over lags -K..K."""
+        out = []
+        stream = self._stream
+        for hop in self._hops.split(accel_mps2):
+            stream[:, _A1 : _A3 + 1] = self._highpass.process(hop)
+            stream[:, _B : _R + 1] = stream[:, _A1 : _A3 + 1] @ self._to_modal
+            stream[:, _P_LP : _R_LP + 1] = self._lowpass.process(stream[:, _P : _R + 1])
+            out += [(self._indicators(w), w) for w in self._correlator.push(stream)]
+        return out
+
+    def _indicators(self, w: WindowCorrelations) -> WindowIndicators:
+        fs_hz = self.settings.fs_hz
+        start_s = self._start_s + w.start_index / fs_hz
+        c_br, c_pr = w.lagged
+        (ms_b, ms_p, ms_r, c_pr_lp0, ms_p_lp, ms_r_lp, ms_a1, ms_a2, ms_a3) = w.zero_lag
+        sd_b, sd_p, sd_r, sd_p_lp, sd_r_lp = np.sqrt(np.maximum([ms_b, ms_p, ms_r, ms_p_lp, ms_r_lp], 0.0))
+        rms_a = np.sqrt(np.maximum([ms_a1, ms_a2, ms_a3], 0.0))
+        i1 = float(np.std(c_br))
+        i2 = float(np.std(c_pr))
+        i3 = float(c_pr_lp0)
+        i4 = float(c_pr[self.settings.max_lag_n])
+        return WindowIndicators(
+            start_s=start_s,
+            end_s=start_s + self.settings.window_n / fs_hz,
+            i1=i1,
+            i2=i2,
+            i3=i3,
+            i4=i4,
+            i1_norm=_ratio(i1, sd_b * sd_r),
+            i2_norm=_ratio(i2, sd_p * sd_r),
+            i3_norm=_ratio(i3, sd_p_lp * sd_r_lp),
+            i4_norm=_ratio(i4, sd_p * sd_r),
+            rms_mps2=(float(rms_a[0]), float(rms_a[1]), float(rms_a[2])),
+            rms_bounce_mps2=float(sd_b),
+            rms_pitch_radps2=float(sd_p),
+            rms_roll_radps2=float(sd_r),
+        )

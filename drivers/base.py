@@ -1,0 +1,124 @@
+"""The source interface: what every driver delivers downstream, and the counters it keeps.
+
+A source turns bytes or frames into Blocks: time-aligned (n, 3) samples of a1, a2, a3 in m/s^2
+with the sample rate, the time of the first sample, whether samples were lost before it, and the
+sensors' status bits. Nothing downstream ever sees a byte or a frame.
+"""
+
+from __future__ import annotations
+
+import enum
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+class SensorStatus(enum.IntFlag):
+    """Status bits a sensor reports with its samples (OR-ed over a block)."""
+
+    OK = 0
+    OVER_RANGE = 1  # a sample hit the converter's full scale: the value is clipped
+    SENSOR_FAULT = 2  # the sensor's own self-test or supply monitor reports a fault
+
+
+ALL_OK: tuple[SensorStatus, SensorStatus, SensorStatus] = (SensorStatus.OK,) * 3
+
+
+@dataclass(frozen=True)
+class Block:
+    """Consecutive, uniformly sampled accelerations of the three sensors.
+
+    start_s: time of the first sample, seconds on the source's clock;
+    accel_mps2: (n, 3) float64, columns a1, a2, a3 (specific force, gravity included or not);
+    gap_before: samples were lost, or the stream (re)started, before this block: anything
+      computed across this boundary must be discarded, never bridged;
+    status: per sensor, the status bits seen in this block.
+    """
+
+    start_s: float
+    fs_hz: float
+    accel_mps2: NDArray[np.float64]
+    gap_before: bool = False
+    status: tuple[SensorStatus, SensorStatus, SensorStatus] = ALL_OK
+
+    def __post_init__(self) -> None:
+        if self.accel_mps2.ndim != 2 or self.accel_mps2.shape[1] != 3:
+            raise ValueError(f"a block holds (n, 3) samples, got shape {self.accel_mps2.shape}")
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.accel_mps2.shape[0])
+
+    @property
+    def end_s(self) -> float:
+        """Time just after the last sample (where the next contiguous block starts)."""
+        return self.start_s + self.n_samples / self.fs_hz
+
+
+@dataclass
+class HealthCounters:
+    """Monotonic counters a source keeps about its input; read them, never reset them."""
+
+    frames: int = 0  # frames, packets or rows accepted
+    bad_frames: int = 0  # rejected: wrong length, bad CRC, undecodable, unknown id
+    gaps: int = 0  # discontinuities passed downstream as gap_before
+    timeouts: int = 0  # read() calls that returned nothing in time
+    reconnects: int = 0  # times the device or bus was reopened
+    extra: dict[str, int] = field(default_factory=dict)  # driver-specific counters
+
+    def as_dict(self) -> dict[str, int]:
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
+        out.update(self.extra)
+        return out
+
+
+class EndOfStream(Exception):
+    """A finite source (a recording) has delivered its last block."""
+
+
+class Source(ABC):
+    """Where blocks come from. Implementations: CAN, serial, replay, in-memory (for tests)."""
+
+    fs_hz: float
+    counters: HealthCounters
+
+    @abstractmethod
+    def read(self, timeout_s: float) -> Block | None:
+        """The next block, or None if nothing arrived within timeout_s.
+
+        Raises EndOfStream after the last block of a finite source. A live source never raises
+        for what the bus or the cable does: it counts it, reconnects, and reports a gap.
+        """
+
+    def close(self) -> None:  # noqa: B027 - optional for sources that hold nothing
+        """Release the device or file."""
+
+    def __enter__(self) -> Source:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class MemorySource(Source):
+    """A finite source over blocks held in memory: the test double of every driver."""
+
+    def __init__(self, blocks: list[Block]) -> None:
+        if not blocks:
+            raise ValueError("a MemorySource needs at least one block")
+        self.fs_hz = blocks[0].fs_hz
+        self.counters = HealthCounters()
+        self._blocks = list(blocks)
+        self._next = 0
+
+    def read(self, timeout_s: float) -> Block | None:
+        if self._next >= len(self._blocks):
+            raise EndOfStream
+        block = self._blocks[self._next]
+        self._next += 1
+        self.counters.frames += block.n_samples
+        if block.gap_before and self._next > 1:
+            self.counters.gaps += 1
+        return block

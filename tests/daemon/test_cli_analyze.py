@@ -1,0 +1,93 @@
+"""`bogiemon analyze` and `bogiemon check-config` as a user runs them: real processes, real files."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bogiemon.daemon.cli.main import main
+from bogiemon.drivers.recording import write_csv_recording
+
+FAST_CONFIG = "[processing]\nfs_hz = 100.0\nwindow_s = 6.0\nhop_s = 2.0\nmax_lag_s = 1.5\n"
+BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+
+
+@pytest.fixture
+def recording(tmp_path: Path) -> Path:
+    rng = np.random.default_rng(0)
+    n = 1400  # 14 s at 100 Hz: windows at 0, 2, 4, 6, 8 s
+    path = tmp_path / "run.csv"
+    write_csv_recording(path, 50.0 + np.arange(n) / 100.0, rng.standard_normal((n, 3)) + 9.81)
+    return path
+
+
+@pytest.fixture
+def config(tmp_path: Path) -> Path:
+    path = tmp_path / "fast.toml"
+    path.write_text(FAST_CONFIG)
+    return path
+
+
+def test_analyze_prints_a_line_per_window(recording: Path, config: Path, capsys) -> None:
+    assert main(["analyze", str(recording), "--config", str(config)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"# {recording}: 1400 samples at 100 Hz (14.0 s)")
+    assert lines[1].split() == ["start_s", "end_s", "I1", "I2", "I3", "I4", "I1n", "I2n", "I3n", "I4n"]
+    rows = [line.split() for line in lines[2:]]
+    assert [float(r[0]) for r in rows] == [50.0, 52.0, 54.0, 56.0, 58.0]
+    assert all(len(r) == 10 for r in rows)
+
+
+def test_analyze_json_has_every_field_and_the_file(recording: Path, config: Path, capsys) -> None:
+    assert main(["analyze", str(recording), str(recording), "--config", str(config), "--json"]) == 0
+    records = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(records) == 10
+    assert set(records[0]) == {
+        "file", "start_s", "end_s", "i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm",
+        "rms_mps2", "rms_bounce_mps2", "rms_pitch_radps2", "rms_roll_radps2",
+    }  # fmt: skip
+    assert records[0]["file"] == str(recording)
+    assert records[0] == {**records[5], "file": str(recording)}
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("time,a1\n", "line 1: expected the header"),
+        ("time_s,a1,a2,a3\n0,1,2,3\n0.01,1,2,3\n", "is shorter than one analysis window"),
+        ("time_s,a1,a2,a3\n0,1,2,3\n0.01,a,2,3\n", "line 3: a1 is not a number"),
+    ],
+)
+def test_analyze_reports_a_bad_file_in_one_line_with_status_2(tmp_path: Path, config: Path, content, message) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text(content)
+    proc = subprocess.run([*BOGIEMON, "analyze", str(bad), "--config", str(config)], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(f"bogiemon: error: {bad}: ")
+    assert message in proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1
+
+
+def test_analyze_with_a_bad_config_exits_2_naming_the_field(tmp_path: Path, recording: Path) -> None:
+    cfg = tmp_path / "typo.toml"
+    cfg.write_text("[processing]\nhop = 5\n")
+    proc = subprocess.run([*BOGIEMON, "analyze", str(recording), "--config", str(cfg)], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "processing.hop: unknown field (did you mean 'hop_s'?)" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_check_config_prints_the_resolved_config(config: Path) -> None:
+    proc = subprocess.run([*BOGIEMON, "check-config", str(config)], capture_output=True, text=True)
+    assert proc.returncode == 0
+    assert proc.stdout.startswith(f"# {config}: valid (digest ")
+    assert "fs_hz = 100.0" in proc.stdout and 'a1 = "leading-left"' in proc.stdout
+
+
+def test_the_console_script_is_installed() -> None:
+    script = Path(sys.executable).with_name("bogiemon")
+    proc = subprocess.run([str(script), "check-config"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "valid" in proc.stdout

@@ -1,0 +1,164 @@
+"""The indicators: streaming core against the reference, and signals with a known correlation."""
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, from_modal
+from bogiemon.detection.reference import indicators_reference
+
+FAST = ProcessingSettings(fs_hz=100.0, window_s=6.0, hop_s=2.0, max_lag_s=1.5, lowpass_hz=10.0)
+GRAVITY = np.array([9.81, 9.81, 9.81])
+
+
+def run_stream(stream: IndicatorStream, accel: np.ndarray, sizes: list[int]) -> list:
+    out, pos, i = [], 0, 0
+    while pos < len(accel):
+        out += stream.process(accel[pos : pos + sizes[i % len(sizes)]])
+        pos += sizes[i % len(sizes)]
+        i += 1
+    return out
+
+
+def assert_records_close(got, want, rel: float) -> None:
+    assert len(got) == len(want)
+    for a, b in zip(got, want, strict=True):
+        for f in dataclasses.fields(a):
+            x, y = np.asarray(getattr(a, f.name)), np.asarray(getattr(b, f.name))
+            np.testing.assert_allclose(x, y, rtol=rel, atol=0, err_msg=f.name)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    hops_per_window=st.integers(1, 4),
+    hop_s=st.sampled_from([0.5, 1.0, 2.0]),
+    lag_fraction=st.floats(0.0, 0.9),
+    sizes=st.lists(st.integers(1, 500), min_size=1, max_size=8),
+    layout=st.sampled_from(list(itertools.permutations(Corner, 3))),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_streaming_core_equals_reference(hops_per_window, hop_s, lag_fraction, sizes, layout, seed) -> None:
+    window_s = hops_per_window * hop_s
+    s = dataclasses.replace(FAST, window_s=window_s, hop_s=hop_s, max_lag_s=round(lag_fraction * window_s, 2))
+    geometry = BogieGeometry(1.8, 2.0, layout)
+    rng = np.random.default_rng(seed)
+    accel = rng.standard_normal((int(rng.integers(700, 1500)), 3)) + GRAVITY
+    got = run_stream(IndicatorStream(s, geometry, start_s=12.5), accel, sizes)
+    want = indicators_reference(accel, s, geometry, start_s=12.5)
+    assert_records_close(got, want, rel=1e-9)
+
+
+def test_default_settings_streaming_equals_reference_on_three_windows() -> None:
+    s = ProcessingSettings()
+    accel = np.random.default_rng(7).standard_normal((int(80 * s.fs_hz), 3)) + GRAVITY
+    got = IndicatorStream(s, BogieGeometry()).process(accel)
+    assert_records_close(got, indicators_reference(accel, s, BogieGeometry()), rel=1e-9)
+
+
+def band_noise(n: int, fs_hz: float, rng: np.random.Generator) -> np.ndarray:
+    """A sum of sines between 2 and 8 Hz: inside both filters' pass bands."""
+    t = np.arange(n) / fs_hz
+    freqs = rng.uniform(2.0, 8.0, size=40)
+    phases = rng.uniform(0, 2 * np.pi, size=40)
+    return np.sin(2 * np.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0) / np.sqrt(20)
+
+
+def sensors_from_modal(bounce, pitch, roll, geometry) -> np.ndarray:
+    return from_modal(np.column_stack([bounce, pitch, roll]), geometry) + GRAVITY
+
+
+@pytest.mark.parametrize("layout", list(itertools.permutations(Corner, 3))[::5])
+@pytest.mark.parametrize("gain", [0.7, -0.4])
+def test_pitch_proportional_to_roll_gives_unit_correlation_with_its_sign(layout, gain) -> None:
+    geometry = BogieGeometry(1.8, 2.0, layout)
+    rng = np.random.default_rng(8)
+    n = int(30 * FAST.fs_hz)
+    roll = band_noise(n, FAST.fs_hz, rng)
+    bounce = band_noise(n, FAST.fs_hz, rng)
+    out = IndicatorStream(FAST, geometry).process(sensors_from_modal(bounce, gain * roll, roll, geometry))
+    for ind in out:
+        assert ind.i4_norm == pytest.approx(np.sign(gain), abs=1e-9)
+        assert ind.i3_norm == pytest.approx(np.sign(gain), abs=1e-9)
+        assert ind.i4 == pytest.approx(gain * ind.rms_roll_radps2**2, rel=1e-9)
+        assert ind.rms_pitch_radps2 == pytest.approx(abs(gain) * ind.rms_roll_radps2, rel=1e-9)
+
+
+def test_pitch_lagging_roll_peaks_at_the_lag() -> None:
+    rng = np.random.default_rng(9)
+    fs, lag_s = FAST.fs_hz, 0.37
+    n = int(30 * fs)
+    roll = band_noise(n + 100, fs, rng)
+    lag_n = int(round(lag_s * fs))
+    pitch = roll[100 - lag_n : 100 - lag_n + n]  # pitch(t) = roll(t - 0.37 s)
+    roll = roll[100 : 100 + n]
+    geometry = BogieGeometry()
+    bounce = band_noise(n, fs, rng)
+    results = IndicatorStream(FAST, geometry).process_with_correlations(
+        sensors_from_modal(bounce, pitch, roll, geometry)
+    )
+    assert results
+    k = FAST.max_lag_n
+    for _, corr in results:
+        c_pr = corr.lagged[1]
+        assert (int(np.argmax(c_pr)) - k) / fs == pytest.approx(lag_s, abs=0.5 / fs)
+
+
+def test_independent_modes_give_small_couplings() -> None:
+    rng = np.random.default_rng(10)
+    n = int(120 * FAST.fs_hz)
+    geometry = BogieGeometry()
+    accel = sensors_from_modal(
+        rng.standard_normal(n), rng.standard_normal(n), rng.standard_normal(n), geometry
+    )
+    out = IndicatorStream(FAST, geometry).process(accel)
+    n_window = FAST.window_n
+    for ind in out:
+        # A correlation coefficient of independent white signals has a spread of 1/sqrt(N).
+        assert abs(ind.i4_norm) < 5 / np.sqrt(n_window)
+        assert abs(ind.i3_norm) < 5 / np.sqrt(n_window / 5)  # 10 Hz of 50: fewer degrees of freedom
+
+
+def test_bounce_coupled_to_roll_raises_i1_and_leaves_the_pitch_indicators_unchanged() -> None:
+    rng = np.random.default_rng(11)
+    long_window = dataclasses.replace(FAST, window_s=30.0, hop_s=10.0)
+    fs, n = FAST.fs_hz, int(90 * FAST.fs_hz)
+    roll, pitch = band_noise(n, fs, rng), band_noise(n, fs, rng)
+    geometry = BogieGeometry()
+    coupled = IndicatorStream(long_window, geometry).process(sensors_from_modal(np.roll(roll, 20), pitch, roll, geometry))
+    free = IndicatorStream(long_window, geometry).process(sensors_from_modal(band_noise(n, fs, rng), pitch, roll, geometry))
+    assert len(coupled) == len(free) == 7
+    assert min(c.i1_norm for c in coupled) > 2.5 * max(f.i1_norm for f in free)
+    for c, f in zip(coupled, free, strict=True):  # bounce never enters C_PR
+        assert c.raw[1:] == pytest.approx(f.raw[1:], rel=1e-9)
+        assert c.normalised[1:] == pytest.approx(f.normalised[1:], rel=1e-9)
+
+
+def test_window_times_follow_the_hop_from_the_start_time() -> None:
+    accel = np.random.default_rng(12).standard_normal((1000, 3))
+    out = IndicatorStream(FAST, BogieGeometry(), start_s=100.0).process(accel)
+    assert [o.start_s for o in out] == [100.0 + 2.0 * i for i in range(len(out))]
+    assert all(o.end_s - o.start_s == pytest.approx(6.0) for o in out)
+
+
+def test_restart_keeps_windows_off_a_gap() -> None:
+    rng = np.random.default_rng(13)
+    stream = IndicatorStream(FAST, BogieGeometry())
+    before = stream.process(rng.standard_normal((850, 3)))
+    stream.restart(500.0)
+    after = stream.process(rng.standard_normal((850, 3)))
+    assert [o.start_s for o in before] == [0.0, 2.0]
+    assert [o.start_s for o in after] == [500.0, 502.0]
+
+
+def test_a_dead_sensor_leaves_normalised_indicators_undefined() -> None:
+    out = IndicatorStream(FAST, BogieGeometry()).process(np.tile(GRAVITY, (700, 1)))
+    assert out and all(np.isnan(o.i4_norm) and abs(o.i4) < 1e-15 for o in out)
+
+
+def test_window_not_a_multiple_of_hop_is_rejected() -> None:
+    with pytest.raises(ValueError, match="whole number of hops"):
+        IndicatorStream(dataclasses.replace(FAST, hop_s=4.0), BogieGeometry())
