@@ -35,7 +35,5 @@ def analyze_recording(recording: Recording, config: BogiemonConfig) -> Iterator[
 
 
 def indicators_as_dict(ind: WindowIndicators) -> dict[str, Any]:
-    """Every field of a window record, JSON-ready."""
-    out = dataclasses.asdict(ind)
-    out["rms_mps2"] = list(ind.rms_mps2)
-    return out
+    """Every field of a window record (nested records as objects, tuples as lists), JSON-ready."""
+    return dataclasses.asdict(ind)

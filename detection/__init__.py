@@ -3,6 +3,7 @@
 No I/O, threads, logging or clocks live here; times are data passed in by the caller.
 """
 
+from bogiemon.detection.channel_stats import ChannelStats
 from bogiemon.detection.conditioning import StreamingSOS, butter_sos
 from bogiemon.detection.indicators import IndicatorStream, ProcessingSettings, WindowIndicators
 from bogiemon.detection.kinematics import PAPER_LAYOUT, BogieGeometry, Corner, from_modal, to_modal
@@ -11,6 +12,7 @@ from bogiemon.detection.xcorr import StreamingCrossCorrelator, WindowCorrelation
 __all__ = [
     "PAPER_LAYOUT",
     "BogieGeometry",
+    "ChannelStats",
     "Corner",
     "IndicatorStream",
     "ProcessingSettings",

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.detection.channel_stats import ChannelStats, WindowedChannelStats
 from bogiemon.detection.conditioning import StreamingSOS, butter_sos
 from bogiemon.detection.hops import HopAssembler
 from bogiemon.detection.kinematics import BogieGeometry
@@ -77,6 +78,7 @@ class WindowIndicators:
     rms_bounce_mps2: float
     rms_pitch_radps2: float
     rms_roll_radps2: float
+    channels: ChannelStats  # raw statistics of a1, a2, a3, for judging the sensors
 
     @property
     def raw(self) -> tuple[float, float, float, float]:
@@ -108,7 +110,13 @@ class IndicatorStream:
     restart() after a gap: windows never span it, and the filters start afresh.
     """
 
-    def __init__(self, settings: ProcessingSettings, geometry: BogieGeometry, start_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        settings: ProcessingSettings,
+        geometry: BogieGeometry,
+        start_s: float = 0.0,
+        clip_level_mps2: float = np.inf,
+    ) -> None:
         if settings.window_n % settings.hop_n:
             raise ValueError(f"window_s ({settings.window_s}) must be a whole number of hops ({settings.hop_s} s)")
         self.settings = settings
@@ -135,6 +143,7 @@ class IndicatorStream:
             max_lag_n=settings.max_lag_n,
             zero_lag_pairs=_ZERO_LAG_PAIRS,
         )
+        self._channel_stats = WindowedChannelStats(settings.window_n // settings.hop_n, settings.hop_n, clip_level_mps2)
         self.restart(start_s)
 
     def restart(self, start_s: float) -> None:
@@ -144,6 +153,7 @@ class IndicatorStream:
         self._highpass.reset()
         self._lowpass.reset()
         self._correlator.reset()
+        self._channel_stats.reset()
 
     def process(self, accel_mps2: NDArray[np.float64]) -> list[WindowIndicators]:
         return [ind for ind, _ in self.process_with_correlations(accel_mps2)]
@@ -155,13 +165,17 @@ class IndicatorStream:
         out = []
         stream = self._stream
         for hop in self._hops.split(accel_mps2):
+            stats = self._channel_stats.push_hop(hop)
             stream[:, _A1 : _A3 + 1] = self._highpass.process(hop)
             stream[:, _B : _R + 1] = stream[:, _A1 : _A3 + 1] @ self._to_modal
             stream[:, _P_LP : _R_LP + 1] = self._lowpass.process(stream[:, _P : _R + 1])
-            out += [(self._indicators(w), w) for w in self._correlator.push(stream)]
+            # Whole hops in, so at most one window out, on the same hop as its channel stats.
+            for w in self._correlator.push(stream):
+                assert stats is not None
+                out.append((self._indicators(w, stats), w))
         return out
 
-    def _indicators(self, w: WindowCorrelations) -> WindowIndicators:
+    def _indicators(self, w: WindowCorrelations, stats: ChannelStats) -> WindowIndicators:
         fs_hz = self.settings.fs_hz
         start_s = self._start_s + w.start_index / fs_hz
         c_br, c_pr = w.lagged
@@ -187,4 +201,5 @@ class IndicatorStream:
             rms_bounce_mps2=float(sd_b),
             rms_pitch_radps2=float(sd_p),
             rms_roll_radps2=float(sd_r),
+            channels=stats,
         )

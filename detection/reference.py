@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
+from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.detection.conditioning import butter_sos
 from bogiemon.detection.indicators import ProcessingSettings, WindowIndicators
 from bogiemon.detection.kinematics import BogieGeometry
@@ -61,8 +62,10 @@ def indicators_reference(
     settings: ProcessingSettings,
     geometry: BogieGeometry,
     start_s: float = 0.0,
+    clip_level_mps2: float = np.inf,
 ) -> list[WindowIndicators]:
     """Every full window of one continuous segment, computed directly."""
+    accel_mps2 = np.asarray(accel_mps2, dtype=np.float64)
     high, low = condition_reference(accel_mps2, settings)
     modal = modal_reference(high, geometry)
     modal_low = modal_reference(low, geometry)
@@ -96,6 +99,7 @@ def indicators_reference(
                 rms_bounce_mps2=sd_b,
                 rms_pitch_radps2=sd_p,
                 rms_roll_radps2=sd_r,
+                channels=channel_stats_reference(accel_mps2[s : s + n_win], clip_level_mps2),
             )
         )
     return out
