@@ -12,10 +12,12 @@ import json
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from bogiemon.daemon.decision import INDICATOR_FIELDS, DecisionSettings, Threshold
+from bogiemon.daemon.health import HealthSettings
 from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
 
 DEFAULT_CONFIG_NAME = "bogiemon.toml"
@@ -73,12 +75,98 @@ class ProcessingConfig(_Section):
         return self
 
 
-class BogiemonConfig(_Section):
-    """The whole configuration. Sections later issues add (sources, thresholds, events) go here."""
+LoadState = Literal["full", "tare"]
+IndicatorName = Literal["i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm"]
+assert set(IndicatorName.__args__) == set(INDICATOR_FIELDS)  # type: ignore[attr-defined]
 
+
+class ThresholdConfig(_Section):
+    center: float = 0.0
+    warning: float = Field(gt=0)
+    alarm: float = Field(gt=0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ThresholdConfig:
+        if self.warning > self.alarm:
+            raise ValueError(f"warning ({self.warning}) must not exceed alarm ({self.alarm})")
+        return self
+
+
+# Thresholds when the config names none (the shipped file states the same values).
+DEFAULT_THRESHOLDS: dict[str, dict[str, ThresholdConfig]] = {
+    "full": {"i2_norm": ThresholdConfig(warning=0.02, alarm=0.03), "i4_norm": ThresholdConfig(warning=0.1, alarm=0.15)},
+    "tare": {"i3_norm": ThresholdConfig(warning=0.1, alarm=0.15)},
+}
+
+
+class DecisionConfig(_Section):
+    load: LoadState = "full"
+    confirm_k: int = Field(3, ge=1)
+    confirm_n: int = Field(5, ge=1, le=100)
+    clear_after_windows: int = Field(6, ge=1)
+    thresholds: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = Field(default_factory=lambda: DEFAULT_THRESHOLDS)
+
+    @field_validator("thresholds", mode="before")
+    @classmethod
+    def _per_load_over_defaults(cls, value: Any) -> Any:
+        """A load state named in the file replaces that state's default set; others keep theirs."""
+        if isinstance(value, dict):
+            return {**DEFAULT_THRESHOLDS, **value}
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> DecisionConfig:
+        if self.confirm_k > self.confirm_n:
+            raise ValueError(f"confirm_k ({self.confirm_k}) must not exceed confirm_n ({self.confirm_n})")
+        if not self.thresholds.get(self.load):
+            raise ValueError(f"no thresholds for the load state '{self.load}': add [decision.thresholds.{self.load}.<indicator>]")
+        return self
+
+
+class HealthConfig(_Section):
+    standstill_rms_mps2: float = Field(0.05, ge=0)
+    min_excitation_rms_mps2: float = Field(0.3, ge=0)
+    flat_rms_mps2: float = Field(0.02, ge=0)
+    stuck_repeat_fraction: float = Field(0.2, gt=0, le=1)
+    clip_level_mps2: float = Field(155.0, gt=0)
+    clipped_fraction: float = Field(1e-4, gt=0, le=1)
+    noise_ratio: float = Field(4.0, gt=1)
+    max_rms_mps2: float = Field(50.0, gt=0)
+    max_gaps_per_hour: int = Field(6, ge=0)
+    clear_after_windows: int = Field(3, ge=1)
+
+
+class StateConfig(_Section):
+    directory: Path = Path("/var/lib/bogiemon")
+
+
+class PipelineConfig(_Section):
+    ring_capacity_s: float = Field(60.0, gt=0)
+
+
+class BogiemonConfig(_Section):
+    """The whole configuration."""
+
+    include: list[str] = Field(default_factory=list)
     geometry: GeometryConfig = GeometryConfig()
     sensors: SensorsConfig = SensorsConfig()
     processing: ProcessingConfig = ProcessingConfig()
+    health: HealthConfig = HealthConfig()
+    decision: DecisionConfig = DecisionConfig()
+    state: StateConfig = StateConfig()
+    pipeline: PipelineConfig = PipelineConfig()
+
+    def health_settings(self) -> HealthSettings:
+        h = self.health
+        return HealthSettings(**h.model_dump(exclude={"clear_after_windows"}))
+
+    def decision_settings(self) -> DecisionSettings:
+        d = self.decision
+        thresholds = {
+            load: {name: Threshold(warning=t.warning, alarm=t.alarm, center=t.center) for name, t in per.items()}
+            for load, per in d.thresholds.items()
+        }
+        return DecisionSettings(thresholds, d.confirm_k, d.confirm_n, d.clear_after_windows)
 
     def bogie_geometry(self) -> BogieGeometry:
         return BogieGeometry(
@@ -113,25 +201,56 @@ def default_config_text() -> str:
 
 
 def load_config(path: str | Path | None = None) -> BogiemonConfig:
-    """Load and validate a config file; None loads the shipped default. Raises ConfigError."""
+    """Load and validate a config file; None loads the shipped default. Raises ConfigError.
+
+    Files named in the top-level `include` list (relative to the including file) are merged
+    over it in order, table by table: how `bogiemon calibrate`'s thresholds reach the daemon.
+    """
     if path is None:
         return parse_config(default_config_text(), source="default config")
     path = Path(path)
+    data = _read_toml(path)
+    for name in data.get("include", []):
+        if not isinstance(name, str):
+            raise ConfigError(f"{path}: include: expected a list of file names, got {name!r}")
+        fragment_path = path.parent / name
+        fragment = _read_toml(fragment_path)
+        if "include" in fragment:
+            raise ConfigError(f"{fragment_path}: an included file cannot include others")
+        data = _merge(data, fragment)
+    return validate_config(data, source=str(path))
+
+
+def parse_config(text: str, source: str) -> BogiemonConfig:
+    return validate_config(_parse_toml(text, source), source)
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config file: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a UTF-8 text file; a config is TOML") from None
-    return parse_config(text, source=str(path))
+    return _parse_toml(text, str(path))
 
 
-def parse_config(text: str, source: str) -> BogiemonConfig:
+def _parse_toml(text: str, source: str) -> dict[str, Any]:
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: invalid TOML: {exc}") from None
-    return validate_config(data, source)
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """Tables merge key by key; any other value in `over` replaces the one in `base`."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def validate_config(data: dict[str, Any], source: str) -> BogiemonConfig:

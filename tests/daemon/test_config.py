@@ -89,3 +89,37 @@ def test_digest_changes_with_any_value() -> None:
     a = BogiemonConfig()
     b = parse_config("[processing]\nlowpass_order = 6\n", "t")
     assert a.digest() == BogiemonConfig().digest() != b.digest()
+
+
+def _leaf_keys(data: dict, prefix: str = "") -> set[str]:
+    keys = set()
+    for key, value in data.items():
+        path = f"{prefix}{key}"
+        keys |= _leaf_keys(value, path + ".") if isinstance(value, dict) else {path}
+    return keys
+
+
+def test_the_shipped_file_names_every_field_of_the_model() -> None:
+    shipped = tomllib.loads(default_config_text())
+    assert _leaf_keys(shipped) == _leaf_keys(BogiemonConfig().model_dump(mode="json"))
+
+
+def test_an_included_fragment_is_merged_over_the_file(tmp_path: Path) -> None:
+    (tmp_path / "thresholds.toml").write_text("[decision.thresholds.full.i4_norm]\nwarning = 0.3\nalarm = 0.4\n")
+    (tmp_path / "main.toml").write_text('include = ["thresholds.toml"]\n[processing]\nhop_s = 20.0\n')
+    config = load_config(tmp_path / "main.toml")
+    assert config.processing.hop_s == 20.0
+    assert set(config.decision.thresholds["full"]) == {"i4_norm"}  # the named load state is replaced
+    assert config.decision.thresholds["full"]["i4_norm"].alarm == 0.4
+    assert config.decision.thresholds["tare"] == BogiemonConfig().decision.thresholds["tare"]
+
+
+def test_a_missing_include_is_named(tmp_path: Path) -> None:
+    (tmp_path / "main.toml").write_text('include = ["gone.toml"]\n')
+    with pytest.raises(ConfigError, match=r"gone.toml: cannot read the config file"):
+        load_config(tmp_path / "main.toml")
+
+
+def test_warning_above_alarm_is_rejected() -> None:
+    with pytest.raises(ConfigError, match=r"decision.thresholds.full.i2_norm: warning \(0.5\) must not exceed alarm"):
+        parse_config("[decision.thresholds.full.i2_norm]\nwarning = 0.5\nalarm = 0.4\n", "t")

@@ -1,0 +1,95 @@
+"""The pipeline's threads: a source thread fills the ring, a processing thread feeds the monitor.
+
+Everything the daemon concludes happens in the processing thread (the monitor and its event
+store); the source thread only reads and copies, so a slow disk or a burst of windows never
+makes the source miss frames, and a stalled source never blocks the processing of what arrived.
+The watchdog asks `last_progress_monotonic`: it moves only when a block passed through.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+from bogiemon.daemon.logs import get_logger
+from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.ringbuffer import BlockRing, RingClosed
+from bogiemon.drivers.base import EndOfStream, Source
+
+READ_TIMEOUT_S = 0.5
+
+
+class Pipeline:
+    def __init__(self, source: Source, monitor: Monitor, ring: BlockRing) -> None:
+        self.source = source
+        self.monitor = monitor
+        self.ring = ring
+        self.last_progress_monotonic = time.monotonic()
+        self.first_block = threading.Event()
+        self.finished = threading.Event()  # the processing thread has ended
+        self.error: BaseException | None = None  # an internal error that stopped a thread
+        self._stop = threading.Event()
+        self._monitor_lock = threading.Lock()
+        self._log = get_logger(component="pipeline")
+        self._threads = [
+            threading.Thread(target=self._read_loop, name="bogiemon-source", daemon=True),
+            threading.Thread(target=self._process_loop, name="bogiemon-core", daemon=True),
+        ]
+
+    def start(self) -> None:
+        for thread in self._threads:
+            thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop reading, process what the ring holds, and wait for both threads."""
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout_s)
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Wait until a finite source is exhausted and processed; True if it was."""
+        return self.finished.wait(timeout_s)
+
+    def with_monitor(self, fn: Callable[[Monitor], object]) -> object:
+        """Run fn on the monitor between two blocks (e.g. a reload from the main thread)."""
+        with self._monitor_lock:
+            return fn(self.monitor)
+
+    def _read_loop(self) -> None:
+        try:
+            while not self._stop.is_set():
+                try:
+                    block = self.source.read(READ_TIMEOUT_S)
+                except EndOfStream:
+                    break
+                if block is None:
+                    continue
+                stored = self.ring.put(block, timeout_s=READ_TIMEOUT_S)
+                while not stored and self.ring.backpressure and not self._stop.is_set():
+                    stored = self.ring.put(block, timeout_s=READ_TIMEOUT_S)
+        except BaseException as exc:  # a bug in a driver: stop cleanly and let the service exit non-zero
+            self.error = exc
+            self._log.error("source thread failed", error=repr(exc))
+        finally:
+            self.ring.close()
+
+    def _process_loop(self) -> None:
+        try:
+            while True:
+                try:
+                    block = self.ring.get(timeout_s=READ_TIMEOUT_S)
+                except RingClosed:
+                    break
+                if block is None:
+                    continue
+                with self._monitor_lock:
+                    self.monitor.feed(block)
+                self.last_progress_monotonic = time.monotonic()
+                self.first_block.set()
+        except BaseException as exc:
+            self.error = exc
+            self._log.error("processing thread failed", error=repr(exc))
+            self._stop.set()
+        finally:
+            self.finished.set()
