@@ -25,10 +25,16 @@ def open_recording(path: str | Path, config: BogiemonConfig) -> Recording:
     return probe
 
 
-def analyze_recording(recording: Recording, config: BogiemonConfig) -> Iterator[WindowIndicators]:
-    """The indicators of every full window of the recording, in time order."""
+def analyze_recording(
+    recording: Recording, config: BogiemonConfig, clip_level_mps2: float | None = None
+) -> Iterator[WindowIndicators]:
+    """The indicators of every full window of the recording, in time order.
+
+    Clipped samples are counted at clip_level_mps2 (default: the config's health.clip_level_mps2).
+    """
     settings = config.processing_settings(fs_hz=recording.fs_hz)
-    stream = IndicatorStream(settings, config.bogie_geometry(), start_s=float(recording.time_s[0]))
+    clip = config.health.clip_level_mps2 if clip_level_mps2 is None else clip_level_mps2
+    stream = IndicatorStream(settings, config.bogie_geometry(), float(recording.time_s[0]), clip)
     chunk_n = max(1, int(CHUNK_S * recording.fs_hz))
     for i in range(0, recording.n_samples, chunk_n):
         yield from stream.process(recording.accel_mps2[i : i + chunk_n])

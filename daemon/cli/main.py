@@ -6,13 +6,21 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bogiemon.daemon.cli import analyze, check_config
+from bogiemon.daemon.calibrate import CalibrationError
+from bogiemon.daemon.cli import analyze, calibrate, check_config, events, run
 from bogiemon.daemon.config import ConfigError
+from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.recording import RecordingError
 
-COMMANDS = (analyze, check_config)
+COMMANDS = (run, analyze, calibrate, events, check_config)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback.
-USER_ERRORS: tuple[type[Exception], ...] = (ConfigError, RecordingError)
+USER_ERRORS: tuple[type[Exception], ...] = (
+    CalibrationError,
+    ConfigError,
+    RecordingError,
+    StoreError,
+    events.TimeArgumentError,
+)
 EXIT_USER_ERROR = 2
 
 

@@ -1,0 +1,34 @@
+"""`bogiemon calibrate RECORDINGS... --load full -o thresholds.toml`: thresholds from healthy runs."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bogiemon.daemon.calibrate import calibrate, fragment
+from bogiemon.daemon.config import load_config
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("calibrate", help="learn thresholds from recordings of a healthy wagon")
+    p.add_argument("files", nargs="+", metavar="RECORDING", help="CSV recordings of the healthy wagon")
+    p.add_argument("--load", required=True, choices=("full", "tare"), help="the load state of the recordings")
+    p.add_argument("-o", "--output", required=True, help="the config fragment to write (TOML)")
+    p.add_argument("--config", help="config file (default: the shipped default config)")
+    p.add_argument("--indicators", help="comma-separated indicators (default: those the config thresholds for --load)")
+    p.add_argument("--warning-rate", type=float, default=1e-2, help="per-window false-warning target (default 0.01)")
+    p.add_argument("--alarm-rate", type=float, default=1e-4, help="per-window false-alarm target (default 0.0001)")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    names = [n.strip() for n in args.indicators.split(",")] if args.indicators else None
+    result = calibrate(args.files, config, args.load, names, args.warning_rate, args.alarm_rate)
+    Path(args.output).write_text(fragment(result), encoding="utf-8")
+    print(f"{result.n_judged} of {result.n_windows} windows judged; wrote {args.output}", file=sys.stderr)
+    for c in result.indicators:
+        t = c.threshold
+        print(f"  {c.name:<8} center {t.center:+.4g}  warning {t.warning:.4g}  alarm {t.alarm:.4g}  (robust sigma {c.robust_sigma:.3g}, largest healthy deviation {c.max_deviation:.3g})", file=sys.stderr)
+    return 0

@@ -1,0 +1,25 @@
+"""`bogiemon run [--config F] [--load full|tare]`: the service (systemd Type=notify, or by hand)."""
+
+from __future__ import annotations
+
+import argparse
+
+from bogiemon.daemon.logs import configure_logging
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("run", help="run the monitoring service")
+    p.add_argument("--config", help="config file (default: the shipped default config)")
+    p.add_argument("--load", choices=("full", "tare"), help="load state, overriding decision.load")
+    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.service import Service
+    from bogiemon.daemon.sources import open_source
+
+    configure_logging(level=args.log_level)
+    service = Service(args.config, open_source, load=args.load)
+    service.install_signal_handlers()
+    return service.run()
