@@ -12,9 +12,9 @@ import json
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
 from bogiemon.daemon.decision import INDICATOR_FIELDS, DecisionSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
@@ -144,6 +144,68 @@ class PipelineConfig(_Section):
     ring_capacity_s: float = Field(60.0, gt=0)
 
 
+class _SourceSection(_Section):
+    """Settings every source kind has."""
+
+    max_block_s: float = Field(1.0, gt=0, le=10.0)
+
+
+class _LiveSourceSection(_SourceSection):
+    reconnect_backoff_min_s: float = Field(0.5, gt=0)
+    reconnect_backoff_max_s: float = Field(30.0, gt=0)
+
+    @model_validator(mode="after")
+    def _backoff_order(self) -> _LiveSourceSection:
+        if self.reconnect_backoff_min_s > self.reconnect_backoff_max_s:
+            raise ValueError(
+                f"reconnect_backoff_min_s ({self.reconnect_backoff_min_s}) must not exceed "
+                f"reconnect_backoff_max_s ({self.reconnect_backoff_max_s})"
+            )
+        return self
+
+
+class CanSourceConfig(_LiveSourceSection):
+    kind: Literal["can"] = "can"
+    interface: Literal["socketcan", "virtual"] = "socketcan"
+    channel: str = Field("can0", min_length=1)
+    layout: Literal["hub", "per-node"] = "hub"
+    dbc_path: str = ""  # empty: the shipped config/bogiemon.dbc
+    receive_buffer_bytes: int = Field(1_048_576, ge=4096)
+
+
+class SerialSourceConfig(_LiveSourceSection):
+    kind: Literal["serial"]
+    port: str = Field("/dev/ttyUSB0", min_length=1)
+    baudrate: int = Field(115200, gt=0)
+
+
+class ReplaySourceConfig(_SourceSection):
+    kind: Literal["replay"]
+    path: str = Field(min_length=1)
+    realtime: bool = True
+    layout: Literal["hub", "per-node"] = "hub"
+    dbc_path: str = ""
+
+
+def _source_kind(value: Any) -> str | None:
+    """The [source] model's tag: its `kind`, "can" when a file leaves it out."""
+    if isinstance(value, dict):
+        return value.get("kind", "can")
+    return getattr(value, "kind", None)
+
+
+# [source] is one of three models, chosen by its `kind` field.
+SourceConfig = Annotated[
+    Annotated[CanSourceConfig, Tag("can")] | Annotated[SerialSourceConfig, Tag("serial")] | Annotated[ReplaySourceConfig, Tag("replay")],
+    Discriminator(
+        _source_kind,
+        custom_error_type="source_kind",
+        custom_error_message="kind must be 'can', 'serial' or 'replay'",
+    ),
+]
+_SOURCE_KINDS: dict[str, type[BaseModel]] = {"can": CanSourceConfig, "serial": SerialSourceConfig, "replay": ReplaySourceConfig}
+
+
 class BogiemonConfig(_Section):
     """The whole configuration."""
 
@@ -155,6 +217,7 @@ class BogiemonConfig(_Section):
     decision: DecisionConfig = DecisionConfig()
     state: StateConfig = StateConfig()
     pipeline: PipelineConfig = PipelineConfig()
+    source: SourceConfig = CanSourceConfig()
 
     def health_settings(self) -> HealthSettings:
         h = self.health
@@ -264,10 +327,16 @@ def validate_config(data: dict[str, Any], source: str) -> BogiemonConfig:
 def _describe(err: Any) -> str:
     """One line per pydantic error: the dotted path, what is wrong, and a suggestion for typos."""
     loc = [str(part) for part in err["loc"]]
+    source_model = None
+    if len(loc) > 1 and loc[0] == "source" and loc[1] in _SOURCE_KINDS:  # drop the [source] union's tag
+        source_model = _SOURCE_KINDS[loc.pop(1)]
     where = ".".join(loc) or "(top level)"
     if err["type"] == "extra_forbidden":
         model: type[BaseModel] = BogiemonConfig
         for part in loc[:-1]:
+            if part == "source" and source_model is not None:
+                model = source_model
+                continue
             annotation = model.model_fields[part].annotation
             if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
                 break

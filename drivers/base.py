@@ -73,6 +73,10 @@ class HealthCounters:
         out.update(self.extra)
         return out
 
+    def add(self, name: str, n: int = 1) -> None:
+        """Increase the driver-specific counter `name` by n (drivers list theirs at 0 up front)."""
+        self.extra[name] = self.extra.get(name, 0) + n
+
 
 class EndOfStream(Exception):
     """A finite source (a recording) has delivered its last block."""
@@ -83,6 +87,12 @@ class Source(ABC):
 
     fs_hz: float
     counters: HealthCounters
+    # The latest problem with the device, bus or file, in one line naming it (None: none yet);
+    # for the daemon's log, next to the counters. A live source keeps it after recovering.
+    last_error: str | None = None
+    # A recording (ends with EndOfStream; the reader may wait for downstream rather than drop)
+    # or a live stream (never waits: samples not taken in time are lost on the bus).
+    finite: bool = False
 
     @abstractmethod
     def read(self, timeout_s: float) -> Block | None:

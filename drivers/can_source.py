@@ -1,0 +1,247 @@
+"""The CAN source: a python-can bus in, Blocks out; survives what a real bus does.
+
+The bus is built by a BusPort, the one extension point: SocketcanBusPort on a gateway (can0,
+vcan0), VirtualBusPort for tests and in-process benches. Both instantiate the interface class
+directly with every setting spelled out, never `can.Bus(...)`, so no ~/.canrc, can.ini or CAN_*
+environment variable is read. Everything past the bus construction is the same code.
+
+read(timeout_s) gathers frames for up to timeout_s, decodes them in one batch and returns the
+samples received since the last call: a Block as soon as max_block_s of samples are in or a
+segment ends, else at timeout_s whatever arrived (None if nothing did). When the bus fails
+(an interface unplugged or deleted, a closed channel) the source counts it, closes the bus,
+and reopens it with exponential backoff on later calls; the next samples start a new segment.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+import can
+from can.interfaces.virtual import VirtualBus
+
+from bogiemon.drivers.base import Block, HealthCounters, Source
+from bogiemon.drivers.can_decode import CanFrameDecoder
+from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.reconnect import Backoff
+from bogiemon.drivers.segments import SampleQueue
+
+# Linux socket options Python's socket module does not name (asm-generic/socket.h values,
+# those of x86, arm and arm64).
+SO_RCVBUFFORCE = 33
+SO_MEMINFO = 55
+SK_MEMINFO_DROPS = 8  # index in the u32 array SO_MEMINFO returns (Linux >= 4.6)
+
+
+class BusPort(ABC):
+    """How a CanSource gets (and gets again) its bus."""
+
+    description: str
+
+    @abstractmethod
+    def open(self) -> can.BusABC:
+        """A new bus; raises OSError or can.CanError if the interface is not there."""
+
+    def dropped_frames(self, bus: can.BusABC) -> int | None:
+        """Frames the bus's receive queue had to drop so far, if the interface can tell."""
+        return None
+
+
+class VirtualBusPort(BusPort):
+    """python-can's in-process virtual bus: every bus on the same channel sees the others' frames."""
+
+    def __init__(self, channel: str) -> None:
+        self.channel = channel
+        self.description = f"virtual CAN channel '{channel}'"
+
+    def open(self) -> can.BusABC:
+        # rx_queue_size=0: an unbounded queue, as lossless as the tests need.
+        return VirtualBus(channel=self.channel, receive_own_messages=False, rx_queue_size=0, preserve_timestamps=False)
+
+
+class SocketcanBusPort(BusPort):
+    """A SocketCAN interface (can0, vcan0) with a receive buffer sized for a slow reader.
+
+    The socket's receive buffer holds the frames that arrive while the daemon is busy; each
+    frame costs the kernel a whole socket buffer (several hundred bytes), not 16. SO_RCVBUFFORCE
+    (needs CAP_NET_ADMIN) sets it past net.core.rmem_max; without the capability SO_RCVBUF is
+    capped there. effective_receive_buffer_bytes is what the kernel granted.
+    """
+
+    def __init__(self, channel: str, receive_buffer_bytes: int) -> None:
+        self.channel = channel
+        self.receive_buffer_bytes = receive_buffer_bytes
+        self.description = f"SocketCAN interface '{channel}'"
+        self.effective_receive_buffer_bytes: int | None = None
+
+    def open(self) -> can.BusABC:
+        from can.interfaces.socketcan import SocketcanBus  # the module imports fine anywhere; only AF_CAN needs Linux
+
+        bus = SocketcanBus(
+            channel=self.channel,
+            receive_own_messages=False,
+            local_loopback=True,
+            fd=False,
+            can_filters=None,
+            ignore_rx_error_frames=False,  # error frames are how bus-off and overflows show
+        )
+        self.effective_receive_buffer_bytes = set_receive_buffer(bus.socket, self.receive_buffer_bytes)
+        return bus
+
+    def dropped_frames(self, bus: can.BusABC) -> int | None:
+        sock = getattr(bus, "socket", None)
+        return socket_drops(sock) if isinstance(sock, socket.socket) else None
+
+
+def set_receive_buffer(sock: socket.socket, size_bytes: int) -> int:
+    """Ask for size_bytes of receive buffer (forced if permitted); returns what the kernel granted."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, size_bytes)
+    except OSError:  # EPERM without CAP_NET_ADMIN: fall back to the capped option
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size_bytes)
+    return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
+def socket_drops(sock: socket.socket) -> int | None:
+    """The kernel's count of packets this socket dropped for want of receive buffer (sk_drops).
+
+    The same number SO_RXQ_OVFL would attach to each received frame, read with SO_MEMINFO
+    instead, because python-can's SocketCAN receive path reserves room for exactly one control
+    message (the timestamp) and would truncate a second. None where the kernel cannot say.
+    """
+    try:
+        raw = sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
+    except OSError:
+        return None
+    if len(raw) < 4 * (SK_MEMINFO_DROPS + 1):
+        return None
+    return int(struct.unpack_from("=I", raw, 4 * SK_MEMINFO_DROPS)[0])
+
+
+class CanSource(Source):
+    """Blocks from a CAN bus carrying one of the DBC's layouts (docs/drivers.md)."""
+
+    def __init__(
+        self,
+        port: BusPort,
+        layout: CanLayout,
+        fs_hz: float,
+        max_block_s: float = 1.0,
+        backoff_min_s: float = 0.5,
+        backoff_max_s: float = 30.0,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.port = port
+        self.layout = layout
+        self.fs_hz = fs_hz
+        self.counters = HealthCounters()
+        self.max_block_n = max(1, round(max_block_s * fs_hz))
+        self._queue = SampleQueue(fs_hz)
+        self._decoder = CanFrameDecoder(layout, fs_hz, self.counters, self._queue)
+        self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
+        self._clock = clock
+        self._sleep = sleep
+        self._bus: can.BusABC | None = None
+        self._opened_before = False
+        self._drops_seen = 0  # the current bus's kernel drop count already counted
+        self._frames_at_open = 0
+        self._try_open()
+
+    @property
+    def connected(self) -> bool:
+        return self._bus is not None
+
+    def read(self, timeout_s: float) -> Block | None:
+        deadline = self._clock() + timeout_s
+        while not self._queue.full_block_ready(self.max_block_n):
+            remaining_s = deadline - self._clock()
+            if remaining_s <= 0:
+                break
+            if self._bus is None and not self._try_open():
+                self._sleep(min(remaining_s, max(self._backoff.due_in_s(), 1e-3)))
+                continue
+            self._receive(remaining_s)
+        block = self._queue.take(self.max_block_n)
+        self.counters.gaps = self._queue.gaps
+        if block is None:
+            self.counters.timeouts += 1
+        return block
+
+    def _receive(self, remaining_s: float) -> None:
+        """Gather frames until a block's worth is in or remaining_s is over, then decode them."""
+        bus = self._bus
+        assert bus is not None
+        wanted = max(1, self.max_block_n - self._queue.n_pending) * self.layout.frames_per_instant
+        end_s = self._clock() + remaining_s
+        messages: list[can.Message] = []
+        try:
+            message = bus.recv(timeout=remaining_s)
+            while message is not None:
+                messages.append(message)
+                if len(messages) >= wanted:
+                    break
+                # Past the deadline, still take what is already queued (timeout 0), up to `wanted`.
+                message = bus.recv(timeout=max(0.0, end_s - self._clock()))
+        except (can.CanError, OSError) as exc:
+            self._decoder.feed(messages)
+            self._lose_bus(exc)
+            return
+        self._decoder.feed(messages)
+        self._count_kernel_drops(bus)
+        if self.counters.frames > self._frames_at_open:
+            self._backoff.reset()  # data flows: a later loss retries quickly again
+
+    def _count_kernel_drops(self, bus: can.BusABC) -> None:
+        drops = self.port.dropped_frames(bus)
+        if drops is not None and drops > self._drops_seen:
+            self.counters.add("dropped_by_kernel", drops - self._drops_seen)
+            # No restart here: the loss shows in the counters and, for long losses, in the
+            # receive times (kernel time stamps), exactly where it happened in the stream.
+            self._drops_seen = drops
+
+    def _try_open(self) -> bool:
+        if self._backoff.due_in_s() > 0:
+            return False
+        try:
+            bus = self.port.open()
+        except (can.CanError, OSError) as exc:
+            self.counters.add("open_failures")
+            wait_s = self._backoff.failed()
+            self.last_error = f"{self.port.description}: cannot open: {_reason(exc)}; retrying in {wait_s:g} s"
+            return False
+        if self._opened_before:
+            self.counters.reconnects += 1
+        self._opened_before = True
+        self._bus = bus
+        self._drops_seen = self.port.dropped_frames(bus) or 0
+        self._frames_at_open = self.counters.frames
+        self._decoder.restart()
+        return True
+
+    def _lose_bus(self, exc: BaseException) -> None:
+        self.counters.add("disconnects")
+        wait_s = self._backoff.failed()
+        self.last_error = f"{self.port.description}: lost: {_reason(exc)}; reopening in {wait_s:g} s"
+        self._close_bus()
+        self._decoder.restart()
+
+    def _close_bus(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError):
+                pass  # the interface is already gone; nothing left to release
+
+    def close(self) -> None:
+        self._close_bus()
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return str(exc) or type(exc).__name__

@@ -1,0 +1,199 @@
+"""The serial ADC source: a pyserial port in, Blocks out; survives garbage and unplugging.
+
+The ADC board streams the packets of drivers/serial_protocol.py. read(timeout_s) reads what
+the port delivers for up to timeout_s (or until max_block_s of samples are in), parses it in
+one batch, checks the sequence counter and returns the samples since the last call. Bytes
+between packets and packets with a bad CRC are skipped and counted; the parser resynchronises
+on the next sync word whose CRC holds. When the port fails (a USB adapter unplugged: EIO, the
+device node gone) the source closes it and reopens the same path with exponential backoff, so
+a stable name such as /dev/serial/by-id/... is picked up again when the adapter returns.
+
+Time stamps: the serial line carries none, so a segment is anchored to the wall clock when its
+first packet is parsed, less the time the packets parsed with it took to arrive at fs_hz.
+"""
+
+from __future__ import annotations
+
+import termios
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import serial
+
+from bogiemon.drivers.base import Block, HealthCounters, Source
+from bogiemon.drivers.reconnect import Backoff
+from bogiemon.drivers.segments import SampleQueue, SequenceTracker
+from bogiemon.drivers.serial_protocol import PACKET_SIZE, SEQUENCE_MODULUS, PacketParser
+
+SERIAL_COUNTERS = (
+    "crc_errors",  # sync words followed by a packet whose CRC fails (also bad_frames)
+    "garbage_bytes",  # bytes skipped while resynchronising
+    "duplicates",  # a packet with the sequence number of the one just accepted: dropped
+    "out_of_order",  # a packet whose sequence number is behind the last accepted one: dropped
+    "lost_samples",  # instants missing inside sequence jumps
+    "disconnects",  # the port failed under the source (adapter unplugged)
+    "open_failures",  # attempts to (re)open the port that failed
+)
+# The sequence counter wraps after 131 s at 500 Hz; half of that is far beyond any pause the
+# line can have without the port failing, so silence only matters for a stalled board.
+MAX_SILENCE_S = 5.0
+
+
+def open_serial_port(port: str, baudrate: int) -> serial.Serial:
+    """The port in raw 8N1 without flow control, locked against a second reader."""
+    return serial.Serial(
+        port=port,
+        baudrate=baudrate,
+        bytesize=serial.EIGHTBITS,
+        parity=serial.PARITY_NONE,
+        stopbits=serial.STOPBITS_ONE,
+        timeout=0,
+        xonxoff=False,
+        rtscts=False,
+        dsrdtr=False,
+        exclusive=True,
+    )
+
+
+class SerialSource(Source):
+    """Blocks from the serial ADC board (docs/drivers.md, serial protocol)."""
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int,
+        fs_hz: float,
+        max_block_s: float = 1.0,
+        backoff_min_s: float = 0.5,
+        backoff_max_s: float = 30.0,
+        opener: Callable[[str, int], Any] = open_serial_port,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.port = port
+        self.baudrate = baudrate
+        self.fs_hz = fs_hz
+        self.counters = HealthCounters()
+        for name in SERIAL_COUNTERS:
+            self.counters.extra[name] = 0
+        self.max_block_n = max(1, round(max_block_s * fs_hz))
+        self._opener = opener
+        self._clock = clock
+        self._sleep = sleep
+        self._wall_clock = wall_clock
+        self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
+        self._parser = PacketParser()
+        self._tracker = SequenceTracker(SEQUENCE_MODULUS, MAX_SILENCE_S)
+        self._queue = SampleQueue(fs_hz)
+        self._serial: Any = None
+        self._opened_before = False
+        self._frames_at_open = 0
+        self._try_open()
+
+    @property
+    def connected(self) -> bool:
+        return self._serial is not None
+
+    def read(self, timeout_s: float) -> Block | None:
+        deadline = self._clock() + timeout_s
+        while not self._queue.full_block_ready(self.max_block_n):
+            remaining_s = deadline - self._clock()
+            if remaining_s <= 0:
+                break
+            if self._serial is None and not self._try_open():
+                self._sleep(min(remaining_s, max(self._backoff.due_in_s(), 1e-3)))
+                continue
+            self._receive(remaining_s)
+        block = self._queue.take(self.max_block_n)
+        self.counters.gaps = self._queue.gaps
+        if block is None:
+            self.counters.timeouts += 1
+        return block
+
+    def _receive(self, remaining_s: float) -> None:
+        wanted_bytes = max(1, self.max_block_n - self._queue.n_pending) * PACKET_SIZE
+        try:
+            self._serial.timeout = remaining_s
+            # pyserial returns when wanted_bytes are in or the timeout expires: one wake-up
+            # per block rather than per packet.
+            data = self._serial.read(wanted_bytes)
+        except (serial.SerialException, OSError, termios.error) as exc:
+            self._lose_port(exc)
+            return
+        if data:
+            self._parse(data, self._wall_clock())
+
+    def _parse(self, data: bytes, received_s: float) -> None:
+        packets = self._parser.feed(data)
+        self.counters.add("crc_errors", packets.crc_errors)
+        self.counters.add("garbage_bytes", packets.garbage_bytes)
+        self.counters.bad_frames += packets.crc_errors
+        k = packets.sequence.shape[0]
+        if k == 0:
+            return
+        self.counters.frames += k
+        # Packet i was complete (k - 1 - i) sample periods before the last one, which was
+        # complete at most one read ago: receive times spaced at fs_hz, ending now.
+        times_s = received_s - (k - 1 - np.arange(k)) / self.fs_hz
+        verdict = self._tracker.check(packets.sequence, times_s)
+        if verdict.duplicates:
+            self.counters.add("duplicates", verdict.duplicates)
+        if verdict.out_of_order:
+            self.counters.add("out_of_order", verdict.out_of_order)
+        if verdict.lost:
+            self.counters.add("lost_samples", verdict.lost)
+        keep = verdict.accept
+        self._queue.append(packets.accel_mps2[keep], packets.status[keep], verdict.new_segment[keep], times_s[keep])
+        if self.counters.frames > self._frames_at_open:
+            self._backoff.reset()
+
+    def _try_open(self) -> bool:
+        if self._backoff.due_in_s() > 0:
+            return False
+        try:
+            port = self._opener(self.port, self.baudrate)
+            port.reset_input_buffer()  # bytes queued while nobody listened are stale
+        except (serial.SerialException, OSError, termios.error, ValueError) as exc:
+            self.counters.add("open_failures")
+            wait_s = self._backoff.failed()
+            self.last_error = f"serial port {self.port}: cannot open: {_reason(exc)}; retrying in {wait_s:g} s"
+            return False
+        if self._opened_before:
+            self.counters.reconnects += 1
+        self._opened_before = True
+        self._serial = port
+        self._frames_at_open = self.counters.frames
+        self._restart()
+        return True
+
+    def _restart(self) -> None:
+        self._parser.reset()
+        self._tracker.restart()
+        self._queue.close_segment()
+
+    def _lose_port(self, exc: BaseException) -> None:
+        self.counters.add("disconnects")
+        wait_s = self._backoff.failed()
+        self.last_error = f"serial port {self.port}: lost: {_reason(exc)}; reopening in {wait_s:g} s"
+        self._close_port()
+        self._restart()
+
+    def _close_port(self) -> None:
+        port, self._serial = self._serial, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError, termios.error):
+                pass  # the device is already gone
+
+    def close(self) -> None:
+        self._close_port()
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -1,0 +1,85 @@
+"""Frames, packets and recordings for the driver tests, with samples that say which instant they are.
+
+Instant k carries a1 = k, a2 = -k, a3 = 7 k mod 20000 - 10000 in LSB, so a delivered sample names
+its instant exactly and any reordering, bridging or corruption shows.
+"""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from bogiemon.drivers.base import Block
+from bogiemon.drivers.candb import CanLayout, load_layout
+from bogiemon.drivers.player import encode_instants
+from bogiemon.drivers.recording import write_csv_recording
+from bogiemon.drivers.serial_protocol import ACCEL_LSB_MPS2
+
+FS_HZ = 500.0
+LSB_MPS2 = ACCEL_LSB_MPS2
+HUB = load_layout(None, "hub")
+PER_NODE = load_layout(None, "per-node")
+
+
+def channel_name() -> str:
+    """A virtual CAN channel no other test uses."""
+    return f"test-{uuid.uuid4().hex[:12]}"
+
+
+def coded_accel(k: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(n, 3) m/s^2 that encode instant numbers k exactly (|k| < 10000)."""
+    k = np.asarray(k, dtype=np.int64)
+    return np.column_stack([k, -k, (7 * k) % 20000 - 10000]).astype(np.float64) * LSB_MPS2
+
+
+def instants_of(accel_mps2: NDArray[np.float64]) -> NDArray[np.int64]:
+    """The instant numbers coded samples carry; asserts all three channels agree."""
+    raw = np.rint(accel_mps2 / LSB_MPS2).astype(np.int64)
+    k = raw[:, 0]
+    np.testing.assert_array_equal(raw[:, 1], -k)
+    np.testing.assert_array_equal(raw[:, 2], (7 * k) % 20000 - 10000)
+    return k
+
+
+def layout_frames(layout: CanLayout, k: NDArray[np.int64], t0_s: float = 1000.0) -> list[can.Message]:
+    """The frames of instants k (their counters are k mod 256), time-stamped k / FS_HZ after t0_s."""
+    out = []
+    for ki in np.asarray(k).tolist():
+        (frames,) = encode_instants(layout, coded_accel(np.array([ki])), first_counter=ki)
+        for frame_id, extended, payload in frames:
+            out.append(
+                can.Message(timestamp=t0_s + ki / FS_HZ, arbitration_id=frame_id, is_extended_id=extended, data=payload)
+            )
+    return out
+
+
+def check_blocks(blocks: list[Block]) -> list[NDArray[np.int64]]:
+    """Assert blocks are well formed (uniform times, no bridged gap); return the instants per segment."""
+    segments: list[list[NDArray[np.int64]]] = []
+    previous: Block | None = None
+    for block in blocks:
+        k = instants_of(block.accel_mps2)
+        assert block.n_samples > 0
+        np.testing.assert_array_equal(np.diff(k), 1)  # consecutive inside a block
+        if block.gap_before or previous is None:
+            assert block.gap_before, "the first block of a stream starts a segment"
+            segments.append([k])
+        else:
+            assert k[0] == segments[-1][-1][-1] + 1, "a block without gap_before continues its segment"
+            # Uniform within a segment, to the float resolution of Unix times (~2e-7 s).
+            assert abs(block.start_s - previous.end_s) < 1e-6, "times are uniform within a segment"
+            segments[-1].append(k)
+        previous = block
+    return [np.concatenate(s) for s in segments]
+
+
+def write_recording(path: Path, n: int, seed: int = 0, start_s: float = 100.0) -> NDArray[np.float64]:
+    """A CSV recording of n samples at FS_HZ; returns its accelerations as written (6 decimals)."""
+    rng = np.random.default_rng(seed)
+    accel = np.round(rng.standard_normal((n, 3)) * 2.0 + np.array([9.81, 9.7, 9.9]), 6)
+    write_csv_recording(path, start_s + np.arange(n) / FS_HZ, accel)
+    return accel

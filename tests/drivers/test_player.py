@@ -1,0 +1,124 @@
+"""The player: pacing exactly on schedule, a full transmit queue waited out, and `bogiemon play` as users run it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from bogiemon.daemon.cli.main import main
+from bogiemon.drivers.can_source import CanSource, VirtualBusPort
+from bogiemon.drivers.player import PlayError, play
+from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, write_recording
+
+
+class RecordingBus(can.BusABC):
+    """A bus double that notes the (fake) time of every send; can refuse sends with ENOBUFS."""
+
+    def __init__(self, clock, refuse: int = 0) -> None:
+        super().__init__(channel="rec")
+        self.clock = clock
+        self.refuse = refuse
+        self.sent: list[tuple[float, can.Message]] = []
+        self.channel_info = "recording bus"
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.refuse:
+            self.refuse -= 1
+            raise can.CanOperationError("Failed to transmit: No buffer space available", 105)
+        self.sent.append((self.clock(), msg))
+
+    def _recv_internal(self, timeout):  # pragma: no cover - never received from
+        return None, False
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now_s = 0.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.now_s += seconds
+
+
+@pytest.mark.parametrize("rate", [1.0, 4.0])
+def test_each_instant_is_sent_at_its_time_divided_by_the_rate(rate: float) -> None:
+    clock = FakeClock()
+    bus = RecordingBus(clock)
+    stats = play(bus, PER_NODE, np.zeros((50, 3)), FS_HZ, rate=rate, clock=clock, sleep=clock.sleep)
+    assert (stats.instants, stats.frames) == (50, 200)
+    times = np.array([t for t, _ in bus.sent]).reshape(50, 4)
+    np.testing.assert_allclose(times, np.repeat(np.arange(50)[:, None] / FS_HZ / rate, 4, axis=1), atol=1e-12)
+    assert [m.arbitration_id for _, m in bus.sent[:4]] == [0x080, 0x101, 0x102, 0x103]  # Sync first
+    bus.shutdown()
+
+
+def test_rate_zero_never_waits() -> None:
+    clock = FakeClock()
+    bus = RecordingBus(clock)
+    play(bus, HUB, np.zeros((100, 3)), FS_HZ, rate=0, clock=clock, sleep=clock.sleep)
+    assert clock.now_s == 0.0 and len(bus.sent) == 100
+    bus.shutdown()
+
+
+def test_a_full_transmit_queue_is_waited_out_then_given_up_on() -> None:
+    clock = FakeClock()
+    bus = RecordingBus(clock, refuse=5)
+    play(bus, HUB, np.zeros((3, 3)), FS_HZ, rate=0, clock=clock, sleep=clock.sleep)
+    assert len(bus.sent) == 3
+    bus.refuse = 10**6
+    with pytest.raises(PlayError, match="transmit queue stayed full for 2 s"):
+        play(bus, HUB, np.zeros((3, 3)), FS_HZ, rate=0, clock=clock, sleep=clock.sleep)
+    bus.shutdown()
+
+
+@pytest.mark.parametrize("layout", ["hub", "per-node"])
+def test_cli_play_on_the_virtual_bus_feeds_the_can_source(tmp_path: Path, layout: str) -> None:
+    accel = write_recording(tmp_path / "run.csv", 800)
+    channel = channel_name()
+    with CanSource(VirtualBusPort(channel), HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
+        argv = ["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel, "--rate", "0"]
+        assert main([*argv, "--layout", layout]) == 0
+        blocks = []
+        while (block := source.read(0.05)) is not None:
+            blocks.append(block)
+    got = np.concatenate([b.accel_mps2 for b in blocks])
+    assert got.shape == (800, 3) and np.abs(got - accel).max() <= LSB_MPS2 / 2 + 1e-12
+    assert source.counters.gaps == 0 and source.counters.bad_frames == 0
+
+
+def test_cli_play_at_real_time_pace_runs_beside_a_reader(tmp_path: Path) -> None:
+    write_recording(tmp_path / "run.csv", 100)  # 0.2 s
+    channel = channel_name()
+    with CanSource(VirtualBusPort(channel), HUB, FS_HZ) as source:
+        player = threading.Thread(target=main, args=(["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel],))
+        player.start()
+        got = 0
+        while got < 100 and (block := source.read(0.3)) is not None:
+            got += block.n_samples
+        player.join()
+    assert got == 100
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--interface", "socketcan", "--channel", "nosuchcan9"], "bogiemon: error: CAN interface 'nosuchcan9'"),
+        (["--rate", "-1", "--interface", "virtual"], "bogiemon: error: --rate must be 0 (as fast as possible) or positive, got -1"),
+        (["--dbc", "missing.dbc", "--interface", "virtual"], "bogiemon: error: missing.dbc: cannot read the DBC file"),
+    ],
+)
+def test_cli_play_user_errors_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
+    write_recording(tmp_path / "run.csv", 10)
+    cmd = [sys.executable, "-m", "bogiemon.daemon.cli.main", "play", str(tmp_path / "run.csv"), *args]
+    result = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.startswith(message)
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr

@@ -1,0 +1,74 @@
+"""open_source: the [source] section builds the right driver with its settings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bogiemon.daemon.config import ConfigError, parse_config
+from bogiemon.daemon.sources import open_source
+from bogiemon.drivers.can_source import CanSource, SocketcanBusPort, VirtualBusPort
+from bogiemon.drivers.candb import DbcError
+from bogiemon.drivers.replay import CanLogReplaySource, CsvReplaySource
+from bogiemon.drivers.serial_source import SerialSource
+from tests.drivers.frames import write_recording
+
+
+def test_the_default_source_is_socketcan_on_can0_with_the_shipped_hub_layout() -> None:
+    config = parse_config("", "t")
+    source = open_source(config)
+    try:
+        assert isinstance(source, CanSource) and isinstance(source.port, SocketcanBusPort)
+        assert (source.port.channel, source.port.receive_buffer_bytes) == ("can0", 1048576)
+        assert source.layout.name == "hub" and source.layout.source == "shipped bogiemon.dbc"
+        assert source.fs_hz == 500.0 and source.max_block_n == 500
+        if not source.connected:  # as here: no can0 (nor SocketCAN); the source retries, never raises
+            assert source.last_error.startswith("SocketCAN interface 'can0': cannot open")
+    finally:
+        source.close()
+
+
+def test_a_virtual_per_node_can_source_from_the_config() -> None:
+    config = parse_config('[source]\ninterface = "virtual"\nchannel = "cfg-test"\nlayout = "per-node"\nmax_block_s = 0.2\n', "t")
+    with open_source(config) as source:
+        assert isinstance(source.port, VirtualBusPort) and source.connected
+        assert source.layout.name == "per-node" and source.max_block_n == 100
+
+
+def test_a_serial_source_from_the_config(tmp_path: Path) -> None:
+    config = parse_config(f'[source]\nkind = "serial"\nport = "{tmp_path}/ttyX"\nbaudrate = 230400\n', "t")
+    with open_source(config) as source:
+        assert isinstance(source, SerialSource) and (source.port, source.baudrate) == (f"{tmp_path}/ttyX", 230400)
+
+
+def test_replay_sources_from_the_config(tmp_path: Path) -> None:
+    write_recording(tmp_path / "run.csv", 10)
+    csv = open_source(parse_config(f'[source]\nkind = "replay"\npath = "{tmp_path}/run.csv"\nrealtime = false\n', "t"))
+    assert isinstance(csv, CsvReplaySource) and csv.rate == 0
+    (tmp_path / "run.log").write_text("(0.0) vcan0 100#0000000000000000\n")
+    log = open_source(parse_config(f'[source]\nkind = "replay"\npath = "{tmp_path}/run.log"\n', "t"))
+    assert isinstance(log, CanLogReplaySource) and log.rate == 1.0
+    log.close()
+
+
+def test_a_bad_dbc_in_the_config_is_a_user_error(tmp_path: Path) -> None:
+    with pytest.raises(DbcError, match="nope.dbc: cannot read the DBC file"):
+        open_source(parse_config(f'[source]\ninterface = "virtual"\ndbc_path = "{tmp_path}/nope.dbc"\n', "t"))
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ('[source]\nkind = "usb"\n', "source: kind must be 'can', 'serial' or 'replay'"),
+        ('[source]\nchanel = "vcan0"\n', "source.chanel: unknown field (did you mean 'channel'?)"),
+        ('[source]\nkind = "serial"\nbaud = 9600\n', "source.baud: unknown field (did you mean 'baudrate'?)"),
+        ('[source]\nkind = "replay"\n', "source.path: Field required"),
+        ('[source]\ninterface = "pcan"\n', "source.interface: Input should be 'socketcan' or 'virtual'"),
+        ("[source]\nreconnect_backoff_min_s = 60\n", "source: reconnect_backoff_min_s (60.0) must not exceed reconnect_backoff_max_s (30.0)"),
+    ],
+)  # fmt: skip
+def test_a_bad_source_field_is_named_with_its_path(text: str, expected: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        parse_config(text, "site.toml")
+    assert expected in str(info.value)
