@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: test install bench bench-core clean
+.PHONY: test install bench bench-core bench-drivers bench-simulator clean
 
 # The venv is (re)built when missing or when pyproject.toml changes.
 $(STAMP): pyproject.toml
@@ -23,7 +23,13 @@ test: $(STAMP)
 bench-core: $(STAMP)
 	$(PY) bench/bench_core.py
 
-bench: bench-core
+bench-drivers: $(STAMP)
+	$(PY) bench/bench_drivers.py
+
+bench-simulator: $(STAMP)
+	$(PY) bench/bench_simulator.py
+
+bench: bench-core bench-drivers
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis build *.egg-info
