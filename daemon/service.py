@@ -135,7 +135,7 @@ class Service:
     def _start_pipeline(self, monitor: Monitor) -> Pipeline:
         source = self.source_factory(self.config)
         capacity_n = max(1, int(self.config.pipeline.ring_capacity_s * source.fs_hz))
-        ring = BlockRing(capacity_n, backpressure=getattr(source, "finite", False))
+        ring = BlockRing(capacity_n, backpressure=source.finite)
         pipeline = Pipeline(source, monitor, ring)
         pipeline.start()
         return pipeline

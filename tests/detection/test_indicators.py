@@ -58,7 +58,8 @@ def test_streaming_core_equals_reference(hops_per_window, hop_s, lag_fraction, s
     geometry = BogieGeometry(1.8, 2.0, layout)
     rng = np.random.default_rng(seed)
     # Quantised to 0.25 m/s^2 so that repeated samples and clipping occur.
-    accel = np.round(4 * (rng.standard_normal((int(rng.integers(700, 1500)), 3)) + GRAVITY)) / 4
+    n = int(rng.integers(s.window_n, s.window_n + 700))
+    accel = np.round(4 * (rng.standard_normal((n, 3)) + GRAVITY)) / 4
     got = run_stream(IndicatorStream(s, geometry, start_s=12.5, clip_level_mps2=11.0), accel, sizes)
     want = indicators_reference(accel, s, geometry, start_s=12.5, clip_level_mps2=11.0)
     assert any(w.channels.repeat_fraction[0] > 0 and w.channels.clipped_fraction[1] > 0 for w in want)
