@@ -187,6 +187,23 @@ class ReplaySourceConfig(_SourceSection):
     dbc_path: str = ""
 
 
+class SimulatedSourceConfig(_SourceSection):
+    """The bundled simulator on an in-process virtual CAN bus: the demo and the end-to-end tests."""
+
+    kind: Literal["simulated"]
+    load: Literal["full", "tare"] = "full"
+    speed_kmh: float = Field(80.0, gt=0, le=200)
+    track: str = "erri-low"
+    duration_s: float = Field(300.0, gt=0)
+    seed: int = Field(0, ge=0)
+    faults: list[str] = Field(default_factory=list)
+    fault_at_s: float = Field(0.0, ge=0)
+    rate: float = Field(8.0, gt=0)
+    channel: str = Field("bogiemon-sim", min_length=1)
+    layout: Literal["hub", "per-node"] = "hub"
+    dbc_path: str = ""
+
+
 def _source_kind(value: Any) -> str | None:
     """The [source] model's tag: its `kind`, "can" when a file leaves it out."""
     if isinstance(value, dict):
@@ -194,16 +211,24 @@ def _source_kind(value: Any) -> str | None:
     return getattr(value, "kind", None)
 
 
-# [source] is one of three models, chosen by its `kind` field.
+# [source] is one of four models, chosen by its `kind` field.
 SourceConfig = Annotated[
-    Annotated[CanSourceConfig, Tag("can")] | Annotated[SerialSourceConfig, Tag("serial")] | Annotated[ReplaySourceConfig, Tag("replay")],
+    Annotated[CanSourceConfig, Tag("can")]
+    | Annotated[SerialSourceConfig, Tag("serial")]
+    | Annotated[ReplaySourceConfig, Tag("replay")]
+    | Annotated[SimulatedSourceConfig, Tag("simulated")],
     Discriminator(
         _source_kind,
         custom_error_type="source_kind",
-        custom_error_message="kind must be 'can', 'serial' or 'replay'",
+        custom_error_message="kind must be 'can', 'serial', 'replay' or 'simulated'",
     ),
 ]
-_SOURCE_KINDS: dict[str, type[BaseModel]] = {"can": CanSourceConfig, "serial": SerialSourceConfig, "replay": ReplaySourceConfig}
+_SOURCE_KINDS: dict[str, type[BaseModel]] = {
+    "can": CanSourceConfig,
+    "serial": SerialSourceConfig,
+    "replay": ReplaySourceConfig,
+    "simulated": SimulatedSourceConfig,
+}
 
 
 class BogiemonConfig(_Section):

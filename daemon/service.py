@@ -153,7 +153,7 @@ class Service:
             new = load_config(self.config_path)
         except ConfigError as exc:
             self._log.error("reload rejected, keeping the running config", reason=str(exc))
-            self.notifier.ready(status="reload rejected: " + str(exc).splitlines()[0])
+            self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in str(exc).splitlines()))
             return pipeline
         old, self.config = self.config, new
         if new.state != old.state:

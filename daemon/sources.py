@@ -7,7 +7,13 @@ configured processing.fs_hz; a CSV replay brings its own.
 
 from __future__ import annotations
 
-from bogiemon.daemon.config import BogiemonConfig, CanSourceConfig, ReplaySourceConfig, SerialSourceConfig
+from bogiemon.daemon.config import (
+    BogiemonConfig,
+    CanSourceConfig,
+    ReplaySourceConfig,
+    SerialSourceConfig,
+    SimulatedSourceConfig,
+)
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.can_source import BusPort, CanSource, SocketcanBusPort, VirtualBusPort
 from bogiemon.drivers.candb import load_layout
@@ -45,6 +51,10 @@ def open_source(config: BogiemonConfig) -> Source:
             backoff_min_s=src.reconnect_backoff_min_s,
             backoff_max_s=src.reconnect_backoff_max_s,
         )
+    if isinstance(src, SimulatedSourceConfig):
+        from bogiemon.daemon.simsource import open_simulated  # the simulator, only for this kind
+
+        return open_simulated(config)
     assert isinstance(src, ReplaySourceConfig)
     is_csv = src.path.lower().endswith(".csv")
     layout = None if is_csv else load_layout(src.dbc_path or None, src.layout)

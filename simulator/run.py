@@ -66,6 +66,12 @@ class _Prepared:
     preroll_n: int
     total_n: int  # output samples including the pre-roll
     sensor_rng: np.random.Generator
+    healthy_model: VehicleModel  # the suspension before the fault onset (model itself when onset is 0)
+
+    @property
+    def onset_n(self) -> int:
+        """Output samples (pre-roll included) run on the healthy suspension."""
+        return self.preroll_n + self.scenario.onset_sample if self.scenario.fault_onset_s > 0 else 0
 
 
 def preroll_s(scenario: Scenario, model: VehicleModel) -> float:
@@ -104,10 +110,12 @@ def _prepare(scenario: Scenario) -> _Prepared:
         ramp_start_m=first_axle_m + 1.0,
         ramp_length_m=PREROLL_RAMP_M,
     )
+    healthy = build_model(scenario.parameters, scenario.load, ()) if scenario.fault_onset_s > 0 else model
     return _Prepared(
         scenario=scenario,
         model=model,
-        rest=static_equilibrium(model),
+        healthy_model=healthy,
+        rest=static_equilibrium(healthy),  # the run starts on the suspension of its first sample
         track=track,
         preroll_n=preroll_n,
         total_n=preroll_n + scenario.n_samples,
@@ -184,7 +192,9 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
     front_m = np.array([p.model.params.axle_offsets_m[-1] for p in preps])
     time_s = np.array([-p.preroll_n / fs_hz for p in preps])
     veh = np.array([kernel.pack_vehicle(p.model.params, p.track.ds_m, dt_s) for p in preps])
-    corner = np.array([p.model.corner_table() for p in preps])
+    corner = np.array([p.healthy_model.corner_table() for p in preps])
+    # Output samples until each scenario's faults appear (0: none pending).
+    until_onset = np.array([p.onset_n for p in preps], dtype=np.int64)
     n_points = max(len(p.scenario.speed.points) for p in preps)
     speed_t = np.zeros((n_batch, n_points))
     speed_v = np.zeros((n_batch, n_points))
@@ -211,7 +221,8 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
     total = int(remaining.sum())
     pieces: list[list[NDArray[np.float64]]] = [[] for _ in preps]
     while remaining.max() > 0:
-        n_out = np.minimum(remaining, chunk_n)
+        # A chunk stops exactly at a pending fault onset; the corners change between two calls.
+        n_out = np.minimum(remaining, np.where(until_onset > 0, np.minimum(until_onset, chunk_n), chunk_n))
         kernel.advance(
             q, v, slider, front_m, time_s, n_out * factor, veh, corner, speed_t, speed_v, n_speed,
             rail_left, rail_right, sensor_xy, sos, zi, factor, out,
@@ -220,6 +231,10 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
             if n_out[b]:
                 pieces[b].append(out[b, : n_out[b]].copy())
         remaining -= n_out
+        for b in np.flatnonzero(until_onset > 0):
+            until_onset[b] -= n_out[b]
+            if until_onset[b] == 0:  # the spring breaks (or the damper changes) now
+                corner[b] = preps[b].model.corner_table()
         report(1.0 - remaining.sum() / total)
 
     results = []

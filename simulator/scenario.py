@@ -112,6 +112,9 @@ class Scenario:
     duration_s: float = 120.0
     seed: int = 0
     faults: tuple[Fault, ...] = ()
+    # The faults appear at this time of the recording (a spring breaking under the running wagon);
+    # before it the suspension is healthy. 0: faulty from the start.
+    fault_onset_s: float = 0.0
     fs_hz: float = 500.0
     geometry: BogieGeometry = field(default_factory=BogieGeometry)
     sensor: SensorModel = field(default_factory=SensorModel)
@@ -130,6 +133,10 @@ class Scenario:
             raise SimulationError(f"unknown track '{self.track}': use one of {', '.join(TRACKS)}")
         if not (math.isfinite(self.duration_s) and self.duration_s > 0):
             raise SimulationError(f"duration must be positive, got {self.duration_s:g} s")
+        if not (math.isfinite(self.fault_onset_s) and 0.0 <= self.fault_onset_s < self.duration_s):
+            raise SimulationError(f"fault onset must lie in [0, duration) = [0, {self.duration_s:g}) s, got {self.fault_onset_s:g}")
+        if self.fault_onset_s > 0.0 and not self.faults:
+            raise SimulationError("a fault onset time needs a fault (--fault)")
         if not (math.isfinite(self.fs_hz) and self.fs_hz > 0):
             raise SimulationError(f"sample rate must be positive, got {self.fs_hz:g} Hz")
         if self.n_samples < 2:
@@ -155,6 +162,11 @@ class Scenario:
     def n_samples(self) -> int:
         return int(round(self.duration_s * self.fs_hz))
 
+    @property
+    def onset_sample(self) -> int:
+        """The first output sample (of the recording) with the faults applied."""
+        return int(round(self.fault_onset_s * self.fs_hz))
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "load": self.load,
@@ -163,6 +175,7 @@ class Scenario:
             "duration_s": self.duration_s,
             "seed": self.seed,
             "faults": [f.to_dict() for f in self.faults],
+            "fault_onset_s": self.fault_onset_s,
             "fs_hz": self.fs_hz,
             "geometry": _geometry_dict(self.geometry),
             "sensor": {
@@ -186,6 +199,7 @@ class Scenario:
                 duration_s=float(data["duration_s"]),
                 seed=int(data["seed"]),
                 faults=tuple(Fault.from_dict(f) for f in data["faults"]),
+                fault_onset_s=float(data.get("fault_onset_s", 0.0)),
                 fs_hz=float(data["fs_hz"]),
                 geometry=BogieGeometry(
                     wheelbase_m=float(geometry["wheelbase_m"]),

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from bogiemon.daemon.calibrate import CalibrationError
-from bogiemon.daemon.cli import analyze, calibrate, check_config, events, play, replay, run, simulate
+from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, events, play, replay, run, simulate
 from bogiemon.daemon.config import ConfigError
 from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.candb import DbcError
@@ -15,7 +15,7 @@ from bogiemon.drivers.player import PlayError
 from bogiemon.drivers.recording import RecordingError
 from bogiemon.simulator.errors import SimulationError
 
-COMMANDS = (run, replay, analyze, calibrate, events, check_config, simulate, play)
+COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, play)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback.
 USER_ERRORS: tuple[type[Exception], ...] = (
     CalibrationError,

@@ -41,6 +41,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         "type_b::0.5@trailing-right, custom:KZ_N_PER_M:FS_N@leading-right; prefix the corner "
         "with trailing-bogie: for the wagon's other bogie",
     )
+    p.add_argument("--fault-at-s", type=float, default=0.0, metavar="T",
+                   help="the faults appear T seconds into the recording, healthy before (default 0: from the start)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the track and the sensor noise (default 0)")
     p.add_argument("--config", help="config file for the sensor corners, spacing and fs_hz (default: shipped)")
     p.add_argument("--fs-hz", type=float, help="sample rate (default: the config's processing.fs_hz)")
@@ -92,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration_s,
         seed=args.seed,
         faults=tuple(parse_fault(f) for f in args.fault),
+        fault_onset_s=args.fault_at_s,
         fs_hz=args.fs_hz if args.fs_hz is not None else config.processing.fs_hz,
         geometry=config.bogie_geometry(),
         sensor=SensorModel(noise_mps2=args.noise_mps2, bias_mps2=tuple(args.bias_mps2), quantum_mps2=args.quantum_mps2),
@@ -109,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
         raise SimulationError(f"{args.output}: cannot write the recording: {exc.strerror or exc}") from None
     if not args.quiet:
         faults = ", ".join(f.spec() for f in scenario.faults) or "healthy"
+        if scenario.fault_onset_s > 0:
+            faults += f" from {scenario.fault_onset_s:g} s"
         print(
             f"{args.output}: {scenario.n_samples} samples at {scenario.fs_hz:g} Hz ({scenario.duration_s:g} s), "
             f"{scenario.load} load, {speed.spec()} km/h on {scenario.track}, seed {scenario.seed}, {faults}; "

@@ -60,7 +60,7 @@ def test_a_bad_dbc_in_the_config_is_a_user_error(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
-        ('[source]\nkind = "usb"\n', "source: kind must be 'can', 'serial' or 'replay'"),
+        ('[source]\nkind = "usb"\n', "source: kind must be 'can', 'serial', 'replay' or 'simulated'"),
         ('[source]\nchanel = "vcan0"\n', "source.chanel: unknown field (did you mean 'channel'?)"),
         ('[source]\nkind = "serial"\nbaud = 9600\n', "source.baud: unknown field (did you mean 'baudrate'?)"),
         ('[source]\nkind = "replay"\n', "source.path: Field required"),

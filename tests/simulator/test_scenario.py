@@ -252,3 +252,28 @@ def test_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0 and proc.stderr == ""
     assert proc.stdout.startswith(f"{tmp_path / 'a.csv'}: 1000 samples at 500 Hz (2 s)")
+
+
+def test_a_fault_with_an_onset_leaves_the_run_healthy_until_then_and_faulty_after() -> None:
+    fault = (parse_fault("type_a:rear_outer:0.0@leading-left"),)
+    base = dict(duration_s=8.0, seed=3, fs_hz=200.0)
+    healthy = simulate(Scenario(**base))
+    onset = simulate(Scenario(**base, faults=fault, fault_onset_s=4.0))
+    faulty = simulate(Scenario(**base, faults=fault))
+    n = int(4.0 * 200.0)
+    # Identical to the healthy run up to the onset (same track, same state)...
+    np.testing.assert_array_equal(onset.accel_mps2[:n], healthy.accel_mps2[:n])
+    # ...then it departs from it, and ends up near the faulty run's behaviour, not the healthy one's.
+    assert np.abs(onset.accel_mps2[n + 50 :] - healthy.accel_mps2[n + 50 :]).max() > 0.05
+    late = slice(n + 400, None)  # two seconds after the onset: the transient has settled
+    assert np.abs(onset.accel_mps2[late] - faulty.accel_mps2[late]).mean() < np.abs(onset.accel_mps2[late] - healthy.accel_mps2[late]).mean()
+
+
+def test_the_onset_is_in_the_sidecar_and_checked() -> None:
+    fault = (parse_fault("type_b::0.5@trailing-right"),)
+    scenario = Scenario(duration_s=10.0, faults=fault, fault_onset_s=2.5)
+    assert Scenario.from_dict(scenario.to_dict()) == scenario
+    with pytest.raises(SimulationError, match="fault onset must lie in"):
+        Scenario(duration_s=10.0, faults=fault, fault_onset_s=10.0)
+    with pytest.raises(SimulationError, match="needs a fault"):
+        Scenario(duration_s=10.0, fault_onset_s=1.0)

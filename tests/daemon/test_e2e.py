@@ -1,0 +1,169 @@
+"""`bogiemon run` as a process: the simulator's sensor hub on a virtual CAN bus inside it, a
+notify socket of ours, real signals, the real SQLite event store."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+
+
+def config_text(state_dir: Path, faults: list[str], duration_s: float, rate: float, extra: str = "") -> str:
+    return f"""
+[source]
+kind = "simulated"
+load = "full"
+speed_kmh = 80.0
+track = "erri-low"
+duration_s = {duration_s}
+seed = 2
+faults = {json.dumps(faults)}
+rate = {rate}
+channel = "e2e-{os.getpid()}-{len(faults)}"
+
+[decision]
+load = "full"
+
+[state]
+directory = "{state_dir}"
+{extra}
+"""
+
+
+class Daemon:
+    """A `bogiemon run` process with a notify socket, its stdout (JSON log lines) collected."""
+
+    def __init__(self, tmp_path: Path, config: str, watchdog_usec: int | None = None) -> None:
+        self.config_path = tmp_path / "bogiemon.toml"
+        self.config_path.write_text(config)
+        self.notify_path = tmp_path / "notify.sock"
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(str(self.notify_path))
+        self.sock.settimeout(0.2)
+        env = {**os.environ, "NOTIFY_SOCKET": str(self.notify_path)}
+        if watchdog_usec:
+            env["WATCHDOG_USEC"] = str(watchdog_usec)
+        self.proc = subprocess.Popen(
+            [*BOGIEMON, "run", "--config", str(self.config_path)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        )  # fmt: skip
+        self.messages: list[str] = []
+
+    def wait_for(self, prefix: str, timeout_s: float = 60.0) -> str:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            try:
+                message = self.sock.recv(4096).decode()
+            except TimeoutError:
+                if self.proc.poll() is not None:
+                    break
+                continue
+            self.messages.append(message)
+            if message.startswith(prefix):
+                return message
+        raise AssertionError(f"no '{prefix}' from the daemon; got {self.messages}; stderr: {self.proc.stderr.read() if self.proc.poll() is not None else ''}")
+
+    def finish(self, timeout_s: float = 60.0) -> tuple[int, str, str]:
+        out, err = self.proc.communicate(timeout=timeout_s)
+        self.sock.setblocking(False)
+        while True:  # what the daemon sent after the last wait_for
+            try:
+                self.messages.append(self.sock.recv(4096).decode())
+            except BlockingIOError:
+                break
+        self.sock.close()
+        return self.proc.returncode, out, err
+
+
+def stored_events(state_dir: Path) -> list[tuple[str, str]]:
+    with sqlite3.connect(state_dir / "events.sqlite3") as db:
+        return db.execute("SELECT event_id, kind FROM events ORDER BY seq").fetchall()
+
+
+def logged_events(stdout: str) -> list[dict]:
+    records = [json.loads(line[3:]) for line in stdout.splitlines() if line.startswith("<") and '"event_id"' in line]
+    return records
+
+
+@pytest.mark.parametrize(("faults", "expect_alarm"), [(["type_a:rear_outer:0.0@leading-left"], True), ([], False)], ids=["broken-spring", "healthy"])
+def test_run_confirms_a_broken_spring_and_stays_quiet_on_a_healthy_wagon(tmp_path: Path, faults, expect_alarm) -> None:
+    state = tmp_path / "state"
+    daemon = Daemon(tmp_path, config_text(state, faults, duration_s=180.0, rate=60.0))
+    daemon.wait_for("READY=1")
+    status, out, err = daemon.finish()
+    assert status == 0, err
+    kinds = [kind for _, kind in stored_events(state)]
+    assert ("CONFIRMED" in kinds) is expect_alarm
+    assert [e["event_id"] for e in logged_events(out)] == [event_id for event_id, _ in stored_events(state)]
+    assert daemon.messages[-1] == "STOPPING=1"
+
+
+def test_sighup_with_a_bad_config_keeps_it_running_and_sigterm_ends_it_cleanly(tmp_path: Path) -> None:
+    state = tmp_path / "state"
+    good = config_text(state, [], duration_s=600.0, rate=5.0)
+    daemon = Daemon(tmp_path, good)
+    daemon.wait_for("READY=1")
+    daemon.config_path.write_text(good.replace('load = "full"\n\n[state]', 'load = "empty"\n\n[state]'))
+    daemon.proc.send_signal(signal.SIGHUP)
+    daemon.wait_for("RELOADING=1")
+    rejected = daemon.wait_for("READY=1")
+    assert "reload rejected" in rejected and "decision.load" in rejected
+    time.sleep(1.0)
+    assert daemon.proc.poll() is None  # still running on the old config
+    daemon.config_path.write_text(good.replace("confirm_k", "confirm_k") + "\n[health]\nnoise_ratio = 5.0\n")
+    daemon.proc.send_signal(signal.SIGHUP)
+    daemon.wait_for("RELOADING=1")
+    assert "reloaded" in daemon.wait_for("READY=1")
+    started = time.monotonic()
+    daemon.proc.send_signal(signal.SIGTERM)
+    status, out, err = daemon.finish(timeout_s=20)
+    assert status == 0, err
+    assert time.monotonic() - started < 10
+    assert "STOPPING=1" in daemon.messages
+    assert any('"reload rejected' in line for line in out.splitlines())
+
+
+def test_kill_9_in_a_burst_of_events_loses_no_event_reported_committed(tmp_path: Path) -> None:
+    state = tmp_path / "state"
+    # A hair trigger: every window is judged against a threshold inside the healthy spread, and
+    # one window confirms or clears, so events come in a burst, several per second.
+    burst = """
+[processing]
+window_s = 10.0
+hop_s = 1.0
+max_lag_s = 2.0
+[decision]
+load = "full"
+confirm_k = 1
+confirm_n = 1
+clear_after_windows = 1
+[decision.thresholds.full.i4_norm]
+center = 0.0
+warning = 0.02
+alarm = 0.02
+"""
+    text = config_text(state, [], duration_s=600.0, rate=20.0).replace('[decision]\nload = "full"\n', "") + burst
+    daemon = Daemon(tmp_path, text)
+    daemon.wait_for("READY=1")
+    reported: list[str] = []
+    deadline = time.monotonic() + 60
+    while len(reported) < 20 and time.monotonic() < deadline:
+        line = daemon.proc.stdout.readline()
+        if '"event_id"' in line:
+            reported.append(json.loads(line[3:])["event_id"])
+    daemon.proc.send_signal(signal.SIGKILL)
+    daemon.proc.wait(timeout=10)
+    assert daemon.proc.returncode == -signal.SIGKILL
+    assert len(reported) >= 20, "the burst never came"
+    stored = {event_id for event_id, _ in stored_events(state)}
+    assert set(reported) <= stored
