@@ -1,10 +1,10 @@
-# bogiemon: `make test` and (with the daemon) `make demo` work on a fresh clone with python3 and make.
+# bogiemon: `make demo` and `make test` work on a fresh clone with python3 and make.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: test install bench bench-core bench-drivers bench-simulator clean
+.PHONY: demo test install bench bench-core bench-drivers bench-simulator clean
 
 # The venv is (re)built when missing or when pyproject.toml changes.
 $(STAMP): pyproject.toml
@@ -13,6 +13,10 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 install: $(STAMP)
+
+# The main job on the bundled simulator: a healthy stretch, then a broken spring (about a minute).
+demo: $(STAMP)
+	$(PY) -m bogiemon.daemon.cli.main demo
 
 # pytest exits 5 when it collects no tests: that is a failure here, never a pass.
 test: $(STAMP)
