@@ -16,8 +16,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import numba
 import numpy as np
+
+from bogiemon.simulator.errors import SimulationError
+
+try:
+    import numba
+except ImportError:  # the `sim` extra: a gateway install leaves the simulator out
+    raise SimulationError("the simulator needs numba: install bogiemon with its 'sim' extra (pip install 'bogiemon[sim]')") from None
 
 # Layout of the per-scenario parameter vector `veh`.
 (

@@ -277,3 +277,14 @@ def test_the_onset_is_in_the_sidecar_and_checked() -> None:
         Scenario(duration_s=10.0, faults=fault, fault_onset_s=10.0)
     with pytest.raises(SimulationError, match="needs a fault"):
         Scenario(duration_s=10.0, fault_onset_s=1.0)
+
+
+def test_without_numba_simulate_says_which_extra_to_install(tmp_path: Path) -> None:
+    code = (
+        "import sys; sys.modules['numba'] = None\n"  # as on a gateway installed without the sim extra
+        "from bogiemon.daemon.cli.main import main\n"
+        f"sys.exit(main(['simulate', '-o', {str(tmp_path / 'run.csv')!r}]))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "needs numba: install bogiemon with its 'sim' extra" in proc.stderr and "Traceback" not in proc.stderr
