@@ -31,7 +31,8 @@ CAN_COUNTERS = (
     "duplicates",  # a frame with the counter of the one just accepted: dropped
     "out_of_order",  # a frame whose counter is behind the last accepted one: dropped
     "lost_samples",  # sampling instants missing inside counter jumps (a lower bound)
-    "unknown_ids",  # frames whose identifier is not one of the layout's (also bad_frames)
+    "unknown_ids",  # frames whose identifier is in no message of the DBC (also bad_frames)
+    "other_dbc_frames",  # frames of the DBC's other messages (alarms, heartbeats): expected, ignored
     "wrong_length",  # a layout identifier with the wrong data length (also bad_frames)
     "remote_frames",  # remote-request frames (also bad_frames)
     "error_frames",  # error frames the controller reported
@@ -122,7 +123,11 @@ class CanFrameDecoder:
                 self.counters.bad_frames += n_wrong
             good[key] = np.flatnonzero(ok)
             self.counters.frames += good[key].size
-        n_unknown = int((~known & ~remote).sum())
+        other = np.isin(keys, np.fromiter(self.layout.other_keys, np.int64, len(self.layout.other_keys))) & ~remote
+        n_other = int((other & ~known).sum())
+        if n_other:
+            self.counters.add("other_dbc_frames", n_other)
+        n_unknown = int((~known & ~other & ~remote).sum())
         if n_unknown:
             self.counters.add("unknown_ids", n_unknown)
             self.counters.bad_frames += n_unknown

@@ -168,6 +168,9 @@ class CanLayout:
     hub: MessageCodec | None = None
     nodes: tuple[MessageCodec, ...] = ()
     sync: MessageCodec | None = None
+    # Keys of the DBC's other messages (the other layout's, the daemon's own alarm and heartbeat
+    # frames): expected on a shared bus, so counted apart and not as bad frames.
+    other_keys: frozenset[int] = frozenset()
 
     @property
     def data_messages(self) -> tuple[MessageCodec, ...]:
@@ -211,6 +214,7 @@ def load_layout(dbc_path: str | Path | None, layout: str) -> CanLayout:
     except Exception as exc:  # cantools raises parser-specific errors; all mean a bad file
         raise DbcError(f"{source}: not a valid DBC file: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     by_name = {m.name: m for m in db.messages}
+    all_keys = {m.frame_id | (CAN_EFF_KEY if m.is_extended_frame else 0) for m in db.messages}
 
     def need(name: str, signals: tuple[str, ...]) -> MessageCodec:
         if name not in by_name:
@@ -223,9 +227,10 @@ def load_layout(dbc_path: str | Path | None, layout: str) -> CanLayout:
 
     if layout == "hub":
         hub = need("SensorHub", _HUB_SIGNALS)
-        return CanLayout(name="hub", source=source, hub=hub)
+        return CanLayout(name="hub", source=source, hub=hub, other_keys=frozenset(all_keys - {hub.key}))
     nodes = tuple(need(f"SensorNode{i}", _NODE_SIGNALS) for i in (1, 2, 3))
     if len({n.signals["Counter"].length for n in nodes}) != 1:
         raise DbcError(f"{source}: the three SensorNode Counter signals must have the same length")
     sync = need("Sync", ("Counter",)) if "Sync" in by_name else None
-    return CanLayout(name="per-node", source=source, nodes=nodes, sync=sync)
+    mine = {n.key for n in nodes} | ({sync.key} if sync is not None else set())
+    return CanLayout(name="per-node", source=source, nodes=nodes, sync=sync, other_keys=frozenset(all_keys - mine))

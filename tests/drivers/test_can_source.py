@@ -89,6 +89,18 @@ def test_foreign_wrong_length_and_remote_frames_are_bad_frames() -> None:
     assert (counters.extra["unknown_ids"], counters.extra["wrong_length"], counters.extra["remote_frames"]) == (2, 1, 1)
 
 
+def test_the_dbcs_other_messages_on_a_shared_bus_are_ignored_not_bad() -> None:
+    frames = layout_frames(HUB, np.arange(20))
+    frames[5:5] = [
+        can.Message(timestamp=1000.01, arbitration_id=0x300, is_extended_id=False, data=bytes(8)),  # BogieAlarm
+        can.Message(timestamp=1000.01, arbitration_id=0x101, is_extended_id=False, data=bytes(4)),  # SensorNode1
+    ]
+    blocks, counters = decode(HUB, frames)
+    (segment,) = check_blocks(blocks)
+    np.testing.assert_array_equal(segment, np.arange(20))
+    assert counters.bad_frames == 0 and counters.extra["other_dbc_frames"] == 2 and counters.extra["unknown_ids"] == 0
+
+
 def test_bus_off_ends_the_segment_even_if_the_counter_runs_on() -> None:
     frames = layout_frames(HUB, np.arange(40))
     frames.insert(20, error_frame(CAN_ERR_BUSOFF, 1000.04))
