@@ -49,7 +49,7 @@ def main() -> None:
         for i, fault in enumerate(faults):
             per_run = []
             for r in results[i * args.seeds : (i + 1) * args.seeds]:
-                stream = IndicatorStream(ProcessingSettings(fs_hz=r.scenario.fs_hz), r.scenario.geometry)
+                stream = IndicatorStream(ProcessingSettings(fs_hz=r.scenario.fs_hz, window_s=60.0), r.scenario.geometry)
                 per_run.append(np.mean([[*w.raw, *w.normalised] for w in stream.process(r.accel_mps2)], axis=0))
             values = np.array(per_run)
             cells = "".join(f"{m:>+11.2e}+/-{s:<6.1e}" for m, s in zip(values.mean(0), values.std(0), strict=True))

@@ -17,6 +17,7 @@ from pathlib import Path
 from types import FrameType
 
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
+from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.monitor import Monitor, MonitorSettings, WindowReport
 from bogiemon.daemon.notify import Notifier
@@ -98,7 +99,9 @@ class Service:
 
     def run(self) -> int:
         store = EventStore(self.config.state.directory)
-        monitor = Monitor(monitor_settings(self.config, self.load), store, self.sinks, self.observers)
+        self.delivery = Delivery(store.path.parent)  # MQTT and CAN alarms, each in a thread of its own
+        monitor = Monitor(monitor_settings(self.config, self.load), store, [*self.sinks, self.delivery], self.observers)
+        self.delivery.start(self.config, monitor)
         self._log.info(
             "starting", config=str(self.config_path or "default"), config_hash=self.config.digest(),
             state=str(store.path), mode=monitor.mode, load=self.load or self.config.decision.load,
@@ -127,6 +130,7 @@ class Service:
             self.notifier.stopping()
             pipeline.stop()
             pipeline.source.close()
+            self.delivery.close()  # says "offline"; what is undelivered stays in the outbox
             monitor.save_state()
             store.close()
             self._log.info("stopped", counters=vars(monitor.counters), source=pipeline.source.counters.as_dict(), ring=vars(pipeline.ring.counters))
@@ -160,6 +164,7 @@ class Service:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
         settings = monitor_settings(new, self.load, pipeline.source.fs_hz)
         pipeline.with_monitor(lambda m: m.reconfigure(settings))
+        self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
         if new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline:
             pipeline.stop()
             pipeline.source.close()

@@ -35,7 +35,7 @@ class ProcessingSettings:
     """How the accelerations are conditioned and windowed. Times in seconds, rates in hertz."""
 
     fs_hz: float = 500.0
-    window_s: float = 60.0
+    window_s: float = 120.0
     hop_s: float = 10.0
     max_lag_s: float = 10.0
     highpass_hz: float = 0.5

@@ -7,25 +7,30 @@ import sys
 from collections.abc import Sequence
 
 from bogiemon.daemon.calibrate import CalibrationError
-from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, events, play, replay, run, simulate
+from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, events, listen, play, replay, run, simulate, study
 from bogiemon.daemon.config import ConfigError
+from bogiemon.daemon.delivery.connection import CredentialsError
+from bogiemon.daemon.delivery.listener import ListenError
 from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.candb import DbcError
 from bogiemon.drivers.player import PlayError
 from bogiemon.drivers.recording import RecordingError
 from bogiemon.simulator.errors import SimulationError
 
-COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, play)
+COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, play, listen)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback.
 USER_ERRORS: tuple[type[Exception], ...] = (
     CalibrationError,
     ConfigError,
+    CredentialsError,
     DbcError,
+    ListenError,
     PlayError,
     RecordingError,
     SimulationError,
     StoreError,
     events.TimeArgumentError,
+    study.StudyError,
 )
 EXIT_USER_ERROR = 2
 

@@ -25,7 +25,7 @@ def test_defaults_give_the_core_its_documented_settings() -> None:
     config = BogiemonConfig()
     assert config.processing_settings() == ProcessingSettings()
     assert config.bogie_geometry() == BogieGeometry()
-    assert config.processing_settings(fs_hz=1000.0).window_n == 60000
+    assert config.processing_settings(fs_hz=1000.0).window_n == 120000
 
 
 def test_sensor_corners_reach_the_geometry() -> None:
@@ -39,8 +39,8 @@ def test_sensor_corners_reach_the_geometry() -> None:
         ("[processing]\nwindw_s = 30\n", "processing.windw_s: unknown field (did you mean 'window_s'?)"),
         ("[geometri]\n", "geometri: unknown field (did you mean 'geometry'?)"),
         ("[processing]\nfs_hz = -5\n", "processing.fs_hz: Input should be greater than 0 (got -5)"),
-        ("[processing]\nhop_s = 7\n", "processing: window_s (60.0) must be a whole multiple of hop_s (7.0)"),
-        ("[processing]\nmax_lag_s = 60\n", "processing: max_lag_s (60.0) must be shorter than window_s (60.0)"),
+        ("[processing]\nhop_s = 7\n", "processing: window_s (120.0) must be a whole multiple of hop_s (7.0)"),
+        ("[processing]\nmax_lag_s = 120\n", "processing: max_lag_s (120.0) must be shorter than window_s (120.0)"),
         ("[processing]\nfs_hz = 16\n", "processing: lowpass_hz (10.0) must be below Nyquist, fs_hz / 2 = 8.0"),
         ("[processing]\nhighpass_order = 'two'\n", "processing.highpass_order: Input should be a valid integer"),
         ('[sensors]\na1 = "up"\n', "sensors.a1: Input should be 'leading-left', 'leading-right', 'trailing-left' or 'trailing-right', got 'up'"),

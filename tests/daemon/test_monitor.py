@@ -113,4 +113,5 @@ def test_alarm_state_survives_a_restart(tmp_path: Path) -> None:
 def test_the_load_state_picks_its_thresholds(tmp_path: Path, load: str) -> None:
     monitor = Monitor(monitor_settings(CONFIG, load=load), EventStore(tmp_path))
     feed_all(monitor, as_blocks(bogie_accel(10, seed=9)))
-    assert set(monitor.latest.judgement.values) == ({"i4_norm"} if load == "full" else {"i3_norm"})
+    assert set(monitor.latest.judgement.values) == set(CONFIG.decision.thresholds[load])
+    assert CONFIG.decision.thresholds["full"] != CONFIG.decision.thresholds["tare"]

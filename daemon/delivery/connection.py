@@ -1,0 +1,163 @@
+"""Connections to an MQTT broker, shared by the publisher and `bogiemon listen`.
+
+A fresh paho client per connection attempt (MQTT 5): TLS from a CA file and an optional client
+certificate, credentials read from files at each attempt (so a rotated password needs no
+restart), never from the command line, and never logged. Errors are turned into one line that
+names the cause and the file or setting to look at.
+"""
+
+from __future__ import annotations
+
+import socket
+import ssl
+from dataclasses import dataclass
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
+
+
+class CredentialsError(Exception):
+    """A TLS or credentials file that cannot be used; the message names the file (never its content)."""
+
+
+@dataclass(frozen=True)
+class ConnectionSettings:
+    host: str
+    port: int
+    tls: bool = False
+    ca_file: str = ""  # empty with tls: the system's trust store
+    cert_file: str = ""  # client certificate (PEM), with key_file
+    key_file: str = ""
+    username_file: str = ""
+    password_file: str = ""
+    keepalive_s: int = 30
+    connect_timeout_s: float = 10.0
+
+    @property
+    def address(self) -> str:
+        return f"{self.host}:{self.port}"
+
+
+def read_secret(path: str, what: str) -> str:
+    """The first line of a credentials file, without its line end."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            line = f.readline()
+    except OSError as exc:
+        raise CredentialsError(f"{what} {path}: cannot read it: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise CredentialsError(f"{what} {path}: not UTF-8 text") from None
+    value = line.rstrip("\r\n")
+    if not value:
+        raise CredentialsError(f"{what} {path}: the file is empty")
+    return value
+
+
+def _refuse_encrypted_key() -> bytes:
+    # Without a password callback OpenSSL would prompt on the terminal: a daemon would hang.
+    raise CredentialsError("the key file is encrypted: give an unencrypted key, protected by its file mode or LoadCredential=")
+
+
+def tls_context(settings: ConnectionSettings) -> ssl.SSLContext:
+    """A client context: TLS 1.2 or newer, the broker's certificate and host name checked."""
+    try:
+        context = ssl.create_default_context(cafile=settings.ca_file or None)
+    except FileNotFoundError:
+        raise CredentialsError(f"CA file {settings.ca_file}: no such file") from None
+    except (OSError, ssl.SSLError) as exc:
+        raise CredentialsError(f"CA file {settings.ca_file}: cannot load it: {_ssl_reason(exc)}") from None
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    if settings.cert_file:
+        try:
+            context.load_cert_chain(settings.cert_file, settings.key_file or None, password=_refuse_encrypted_key)
+        except FileNotFoundError as exc:
+            raise CredentialsError(f"client certificate or key {exc.filename or settings.cert_file}: no such file") from None
+        except (OSError, ssl.SSLError) as exc:
+            raise CredentialsError(
+                f"client certificate {settings.cert_file} with key {settings.key_file}: cannot load them: {_ssl_reason(exc)}"
+            ) from None
+    return context
+
+
+def _ssl_reason(exc: BaseException) -> str:
+    return getattr(exc, "reason", None) or getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+
+
+def new_client(settings: ConnectionSettings, client_id: str, will: tuple[str, str] | None = None) -> mqtt.Client:
+    """A configured, unconnected client. Raises CredentialsError for an unusable file."""
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
+    client.connect_timeout = settings.connect_timeout_s
+    # The caller bounds what is in flight; paho must neither queue nor hold anything back.
+    client.max_inflight_messages_set(0)
+    client.suppress_exceptions = False
+    if settings.tls:
+        client.tls_set_context(tls_context(settings))
+    if settings.username_file:
+        username = read_secret(settings.username_file, "MQTT username file")
+        password = read_secret(settings.password_file, "MQTT password file") if settings.password_file else None
+        client.username_pw_set(username, password)
+    if will is not None:
+        topic, payload = will
+        client.will_set(topic, payload, qos=1, retain=True)
+    return client
+
+
+def session_properties(expiry_s: int) -> Properties:
+    """CONNECT properties asking the broker to keep the session (subscriptions, queued messages)."""
+    properties = Properties(PacketTypes.CONNECT)
+    properties.SessionExpiryInterval = expiry_s
+    return properties
+
+
+@dataclass(frozen=True)
+class LinkProblem:
+    """Why a connection failed or ended: kind is what a log says once ("tls", "credentials", ...)."""
+
+    kind: str  # unreachable, tls, credentials, refused, closed, lost, files, rejected-message
+    text: str  # one line naming the cause and what to check
+
+    def __str__(self) -> str:
+        return self.text
+
+
+def describe_connect_error(exc: OSError, settings: ConnectionSettings) -> LinkProblem:
+    """A failed TCP or TLS connection."""
+    if isinstance(exc, ssl.SSLCertVerificationError):
+        where = settings.ca_file or "the system's trust store"
+        return LinkProblem("tls", f"TLS: the broker's certificate is not trusted ({exc.verify_message}); check mqtt.tls_ca_file ({where}) and mqtt.host")
+    if isinstance(exc, ssl.SSLError):
+        return LinkProblem("tls", f"TLS handshake failed ({_ssl_reason(exc)}): the broker may refuse the client certificate")
+    if isinstance(exc, ConnectionRefusedError):
+        return LinkProblem("unreachable", f"connection refused by {settings.address}: is the broker running and listening there?")
+    if isinstance(exc, socket.gaierror):
+        return LinkProblem("unreachable", f"cannot resolve {settings.host}: {exc.strerror}")
+    if isinstance(exc, TimeoutError):
+        return LinkProblem("unreachable", f"{settings.address} did not answer within {settings.connect_timeout_s:g} s")
+    return LinkProblem("unreachable", f"cannot connect to {settings.address}: {exc.strerror or exc}")
+
+
+def describe_closed(settings: ConnectionSettings, connected: bool, reason: ReasonCode, socket_error: str | None) -> LinkProblem:
+    """A connection that ended without a refusal; socket_error is paho's last error line, if any."""
+    detail = f" ({socket_error})" if socket_error else ("" if reason.value == 0 else f": {reason}")
+    if connected:
+        return LinkProblem("lost", "connection lost" + detail)
+    if settings.tls:
+        # TLS 1.3 checks the client certificate after the handshake: a refusal shows as an alert or
+        # an EOF on the first read, before any CONNACK.
+        return LinkProblem("tls", f"TLS: the broker closed the connection before CONNACK{detail}: it may refuse the client certificate (mqtt.tls_cert_file)")
+    return LinkProblem("closed", "connection closed before CONNACK" + detail)
+
+
+def describe_refusal(reason: ReasonCode, credentials: str = "mqtt.username_file and mqtt.password_file") -> LinkProblem:
+    """A CONNACK that refuses the connection; credentials names where they come from."""
+    if is_auth_refusal(reason):
+        return LinkProblem("credentials", f"the broker refused the credentials ({reason}): check {credentials}")
+    return LinkProblem("refused", f"the broker refused the connection ({reason})")
+
+
+def is_auth_refusal(reason: ReasonCode) -> bool:
+    # Bad user name or password, not authorized, bad authentication method.
+    return reason.value in (0x86, 0x87, 0x8C)

@@ -1,0 +1,463 @@
+"""The MQTT outbox publisher: a thread that sends what the event store holds, oldest first.
+
+The monitor commits events to the store and moves on; this thread reads the pending events (and
+the status records it queues itself) and publishes them with QoS 1, marking each one delivered
+only when the broker's PUBACK for it arrives. The store, not paho's memory, is the queue: every
+connection gets a fresh paho client, and after any loss the backlog is read again from the oldest
+pending row, so a message whose PUBACK was lost goes out again (with the same event_id: the back
+office drops it). Events go before status records; within each, oldest first, at most
+max_rate_msgs_per_s and max_inflight unacknowledged at a time.
+
+Connection failures are retried with a doubling, jittered backoff; each change of the link's
+state (connected, lost, failing for a new reason) is logged once, not each attempt.
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.reasoncodes import ReasonCode
+
+from bogiemon.daemon.delivery.connection import (
+    ConnectionSettings,
+    CredentialsError,
+    LinkProblem,
+    describe_closed,
+    describe_connect_error,
+    describe_refusal,
+    new_client,
+)
+from bogiemon.daemon.delivery.schema import STATE_OFFLINE, STATE_ONLINE, EventMessage, StatusMessage, Topics, dump
+from bogiemon.daemon.logs import get_logger
+from bogiemon.daemon.store import EventStore, OutboxCounts, PendingEvent, PendingStatus
+
+StatusSource = Callable[[OutboxCounts, float], StatusMessage]  # (outbox counts, Unix seconds) -> status
+
+IO_WAIT_S = 0.05  # the network loop's select timeout: the latency of a new event at worst
+TRIM_PERIOD_S = 1.0  # how often the outbox bound is enforced
+FETCH_N = 100  # rows read from the store at a time
+STOP_FLUSH_S = 1.0  # at stop, how long the "offline" state and the last PUBACKs may take
+
+
+@dataclass(frozen=True)
+class PublisherSettings:
+    connection: ConnectionSettings
+    wagon_id: str
+    topic_prefix: str = "bogiemon"
+    client_id: str = ""  # empty: bogiemon-{wagon_id}
+    status_period_s: float = 60.0  # 0: no status messages
+    max_rate_msgs_per_s: float = 10.0
+    max_inflight: int = 10
+    outbox_max_messages: int = 10_000
+    backoff_min_s: float = 1.0
+    backoff_max_s: float = 60.0
+    # Rows committed without a wake-up (another process writing the store) are found this late.
+    poll_s: float = 0.5
+
+    @property
+    def topics(self) -> Topics:
+        return Topics(self.topic_prefix, self.wagon_id)
+
+
+@dataclass
+class PublisherCounters:
+    connect_attempts: int = 0
+    connections: int = 0  # CONNACKs accepted
+    connect_failures: int = 0
+    connections_lost: int = 0
+    published: int = 0  # PUBLISH packets sent, resends included
+    delivered_events: int = 0  # PUBACKs recorded in the store
+    delivered_status: int = 0
+    refused: int = 0  # PUBACKs with a failure reason code (the message stays pending)
+    status_queued: int = 0
+    dropped_status: int = 0  # by the outbox bound, since start
+    dropped_events: int = 0
+
+
+class TokenBucket:
+    """At most rate_per_s on average, bursts of at most burst (a pure function of the clock)."""
+
+    def __init__(self, rate_per_s: float, burst: float, now_s: float) -> None:
+        self.rate_per_s = rate_per_s
+        self.burst = burst
+        self._tokens = burst
+        self._last_s = now_s
+
+    def take(self, now_s: float) -> bool:
+        self._tokens = min(self.burst, self._tokens + (now_s - self._last_s) * self.rate_per_s)
+        self._last_s = now_s
+        if self._tokens >= 1.0:
+            self._tokens -= 1.0
+            return True
+        return False
+
+
+class Backoff:
+    """Waits between connection attempts: doubling from min_s up to max_s, each drawn in [w/2, w].
+
+    The jitter spreads a fleet's reconnections after a broker restart; its generator is seeded
+    (with the wagon id in the publisher), so a wagon's waits are reproducible.
+    """
+
+    def __init__(self, min_s: float, max_s: float, rng: random.Random) -> None:
+        self.min_s = min_s
+        self.max_s = max_s
+        self._rng = rng
+        self._next_s = min_s
+
+    def next_delay_s(self) -> float:
+        ceiling_s = self._next_s
+        self._next_s = min(self.max_s, self._next_s * 2)
+        return ceiling_s * (0.5 + 0.5 * self._rng.random())
+
+    def reset(self) -> None:
+        self._next_s = self.min_s
+
+
+@dataclass
+class _Session:
+    """One connection: its paho client and what is in flight on it."""
+
+    client: mqtt.Client
+    started_s: float
+    connected: bool = False  # the broker accepted the connection (CONNACK)
+    announced: bool = False  # "online" sent and the connection logged
+    end_reason: LinkProblem | None = None  # set by a callback: the session is over
+    socket_error: str | None = None  # paho's last error line: an SSL alert says why TLS 1.3 failed
+    inflight: dict[int, tuple[str, int]] = field(default_factory=dict)  # mid -> ("event"|"status", seq)
+    control_mids: set[int] = field(default_factory=set)  # the state messages, not in the outbox
+    acked_events: list[int] = field(default_factory=list)
+    acked_status: list[int] = field(default_factory=list)
+    events: deque[PendingEvent] = field(default_factory=deque)  # read from the store, not yet sent
+    status: deque[PendingStatus] = field(default_factory=deque)
+    read_event_seq: int = 0  # the last seq read into `events` (or sent)
+    read_status_seq: int = 0
+    events_exhausted_s: float | None = None  # when a read found no more pending events
+    status_exhausted_s: float | None = None
+
+
+class OutboxPublisher:
+    """Publishes the outbox of the event store in state_dir; start() it, wake() it, stop() it."""
+
+    def __init__(
+        self,
+        settings: PublisherSettings,
+        state_dir: str | Path,
+        status_source: StatusSource | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.settings = settings
+        self.state_dir = Path(state_dir)
+        self.status_source = status_source
+        self.counters = PublisherCounters()
+        self.outbox: OutboxCounts | None = None  # as of the last trim (for the CAN heartbeat)
+        self.error: BaseException | None = None  # an internal error that ended the thread
+        self._clock = clock
+        self._wall_clock = wall_clock
+        self._topics = settings.topics
+        self._client_id = settings.client_id or f"bogiemon-{settings.wagon_id}"
+        self._backoff = Backoff(settings.backoff_min_s, settings.backoff_max_s, random.Random(settings.wagon_id))
+        self._bucket = TokenBucket(settings.max_rate_msgs_per_s, max(1.0, settings.max_rate_msgs_per_s), clock())
+        self._session: _Session | None = None
+        self._next_attempt_s = 0.0
+        self._last_state: tuple[str, str] | None = None
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._log = get_logger(component="mqtt", broker=settings.connection.address, client_id=self._client_id)
+        self._thread = threading.Thread(target=self._run, name="bogiemon-mqtt", daemon=True)
+
+    @property
+    def connected(self) -> bool:
+        session = self._session
+        return session is not None and session.connected and session.end_reason is None
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def wake(self) -> None:
+        """New events were committed: read the store now rather than at the next poll."""
+        self._wake.set()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Say "offline", wait briefly for outstanding PUBACKs, disconnect and end the thread."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)
+
+    def is_alive(self) -> bool:
+        return self._thread.is_alive()
+
+    # The thread.
+
+    def _run(self) -> None:
+        store: EventStore | None = None
+        try:
+            store = EventStore(self.state_dir)  # its own connection: SQLite connections are per thread
+            self._loop(store)
+        except BaseException as exc:  # a bug or a broken disk: log it; the monitor goes on, the outbox keeps everything
+            self.error = exc
+            self._log.error("publisher failed", error=repr(exc))
+        finally:
+            if store is not None:
+                try:
+                    self._close_session(store)
+                finally:
+                    store.close()
+
+    def _loop(self, store: EventStore) -> None:
+        period_s = self.settings.status_period_s
+        next_status_s = self._clock() + period_s
+        next_trim_s = self._clock()
+        while not self._stop.is_set():
+            now_s = self._clock()
+            if period_s > 0 and now_s >= next_status_s and self.status_source is not None:
+                next_status_s += period_s
+                if next_status_s <= now_s:  # fell behind (a long connect): skip, do not catch up
+                    next_status_s = now_s + period_s
+                self._queue_status(store)
+                next_trim_s = now_s
+            if now_s >= next_trim_s:
+                next_trim_s = now_s + TRIM_PERIOD_S
+                self._trim(store)
+            session = self._session
+            if session is None:
+                if now_s >= self._next_attempt_s:
+                    self._open_session(now_s)
+                else:
+                    until_s = min(self._next_attempt_s, next_status_s if period_s > 0 else now_s + 1.0, next_trim_s)
+                    self._stop.wait(max(0.0, min(until_s - now_s, 1.0)))
+                continue
+            rc = session.client.loop(timeout=IO_WAIT_S)  # network I/O; the callbacks run here
+            if rc != mqtt.MQTT_ERR_SUCCESS and session.end_reason is None:
+                session.end_reason = LinkProblem("lost", f"connection lost: {mqtt.error_string(rc)}")
+            self._after_io(store, session, self._clock())
+
+    def _after_io(self, store: EventStore, session: _Session, now_s: float) -> None:
+        self._commit_acks(store, session)
+        if session.end_reason is not None:
+            self._end_session(session, session.end_reason)
+            return
+        if not session.connected:
+            if now_s - session.started_s > self.settings.connection.connect_timeout_s:
+                self._end_session(session, LinkProblem("unreachable", f"no CONNACK from {self.settings.connection.address} within the connect timeout"))
+            return
+        if not session.announced:
+            session.announced = True
+            self._on_connected(session)
+        self._send(store, session, now_s)
+
+    # Connections.
+
+    def _open_session(self, now_s: float) -> None:
+        self.counters.connect_attempts += 1
+        settings = self.settings.connection
+        try:
+            client = new_client(settings, self._client_id, will=(self._topics.state, STATE_OFFLINE))
+        except CredentialsError as exc:
+            self._failed(LinkProblem("files", str(exc)))
+            return
+        session = _Session(client=client, started_s=now_s)
+        self._bind(session)
+        try:
+            # Blocking: TCP and TLS (bounded by connect_timeout_s). A clean start: the outbox, not
+            # the broker's session, holds what is pending.
+            client.connect(settings.host, settings.port, keepalive=settings.keepalive_s, clean_start=True)
+        except OSError as exc:
+            self._failed(describe_connect_error(exc, settings))
+            return
+        self._session = session
+
+    def _bind(self, session: _Session) -> None:
+        def on_connect(client: mqtt.Client, _userdata: Any, _flags: Any, reason: ReasonCode, _props: Any) -> None:
+            if reason.is_failure:
+                session.end_reason = describe_refusal(reason)
+            else:
+                session.connected = True
+
+        def on_disconnect(client: mqtt.Client, _userdata: Any, _flags: Any, reason: ReasonCode, _props: Any) -> None:
+            if session.end_reason is None:
+                session.end_reason = describe_closed(self.settings.connection, session.connected, reason, session.socket_error)
+
+        def on_log(client: mqtt.Client, _userdata: Any, level: int, text: str) -> None:
+            if level == mqtt.MQTT_LOG_ERR:
+                session.socket_error = text
+
+        def on_publish(client: mqtt.Client, _userdata: Any, mid: int, reason: ReasonCode, _props: Any) -> None:
+            if mid in session.control_mids:
+                session.control_mids.discard(mid)
+                return
+            entry = session.inflight.pop(mid, None)
+            if entry is None:
+                return
+            if reason.is_failure:
+                # The broker refused the message (e.g. not authorised for the topic): it stays pending,
+                # and the session ends so that the order of the backlog is kept.
+                self.counters.refused += 1
+                session.end_reason = LinkProblem(
+                    "rejected-message", f"the broker refused a message ({reason}): check its ACL for {self._topics.prefix}/{self.settings.wagon_id}/#"
+                )
+                return
+            (session.acked_events if entry[0] == "event" else session.acked_status).append(entry[1])
+
+        session.client.on_connect = on_connect
+        session.client.on_disconnect = on_disconnect
+        session.client.on_publish = on_publish
+        session.client.on_log = on_log
+
+    def _on_connected(self, session: _Session) -> None:
+        self.counters.connections += 1
+        if self._last_state != ("lost", "rejected-message"):  # a broker refusing a message keeps backing off
+            self._backoff.reset()
+        counts = self.outbox
+        self._note("connected", None, "info", pending=None if counts is None else counts.pending)
+        info = session.client.publish(self._topics.state, STATE_ONLINE, qos=1, retain=True)
+        session.control_mids.add(info.mid)
+
+    def _failed(self, problem: LinkProblem) -> None:
+        self.counters.connect_failures += 1
+        delay_s = self._backoff.next_delay_s()
+        self._next_attempt_s = self._clock() + delay_s
+        # Configuration the broker will go on refusing is an error; an unreachable broker a warning.
+        level = "error" if problem.kind in ("credentials", "tls", "files", "refused") else "warning"
+        self._note("failing", problem, level, retry_in_s=round(delay_s, 2))
+
+    def _end_session(self, session: _Session, problem: LinkProblem) -> None:
+        was_connected = session.connected
+        self._session = None
+        try:
+            session.client.disconnect()
+        except Exception:  # noqa: BLE001 - a broken socket may fail to close cleanly; it is dropped anyway
+            pass
+        if was_connected:
+            self.counters.connections_lost += 1
+            delay_s = self._backoff.next_delay_s()
+            self._next_attempt_s = self._clock() + delay_s
+            self._note("lost", problem, "warning", unacknowledged=len(session.inflight), retry_in_s=round(delay_s, 2))
+        else:
+            self._failed(problem)
+
+    def _close_session(self, store: EventStore) -> None:
+        """At stop: the state goes "offline" (a clean disconnect does not fire the will)."""
+        session = self._session
+        if session is None:
+            return
+        if self.connected:
+            info = session.client.publish(self._topics.state, STATE_OFFLINE, qos=1, retain=True)
+            session.control_mids.add(info.mid)
+            deadline_s = self._clock() + STOP_FLUSH_S
+            while (session.control_mids or session.inflight) and session.end_reason is None and self._clock() < deadline_s:
+                session.client.loop(timeout=IO_WAIT_S)
+            self._commit_acks(store, session)
+        self._session = None
+        try:
+            session.client.disconnect()
+        except Exception:  # noqa: BLE001
+            pass
+        self._note("stopped", None, "info")
+
+    def _note(self, state: str, problem: LinkProblem | None, level: str, **fields: Any) -> None:
+        """Log a change of the link's state; a repeat of the same state and kind of problem stays quiet."""
+        key = (state, problem.kind if problem is not None else "")
+        if key == self._last_state:
+            return
+        self._last_state = key
+        getattr(self._log, level)(f"mqtt {state}", **({"reason": problem.text} if problem is not None else {}), **fields)
+
+    # The outbox.
+
+    def _send(self, store: EventStore, session: _Session, now_s: float) -> None:
+        if self._wake.is_set():  # rows were committed: read the store again once what was read is sent
+            self._wake.clear()
+            session.events_exhausted_s = session.status_exhausted_s = None
+        while len(session.inflight) < self.settings.max_inflight:
+            item = self._next_item(store, session, now_s)
+            if item is None:
+                return
+            if not self._bucket.take(now_s):
+                self._put_back(session, item)
+                return
+            if isinstance(item, PendingEvent):
+                topic, payload, retain = self._topics.events, dump(EventMessage.from_event(self.settings.wagon_id, item.seq, item.event)), False
+            else:
+                topic, payload, retain = self._topics.status, item.body, True
+            info = session.client.publish(topic, payload, qos=1, retain=retain)
+            if info.rc != mqtt.MQTT_ERR_SUCCESS:
+                session.end_reason = LinkProblem("lost", f"publish failed: {mqtt.error_string(info.rc)}")
+                return
+            self.counters.published += 1
+            session.inflight[info.mid] = ("event", item.seq) if isinstance(item, PendingEvent) else ("status", item.seq)
+
+    def _next_item(self, store: EventStore, session: _Session, now_s: float) -> PendingEvent | PendingStatus | None:
+        """The oldest pending event not yet sent on this session, else the oldest status record."""
+        if not session.events and self._due(session.events_exhausted_s, now_s):
+            rows = store.pending_events(after_seq=session.read_event_seq, limit=FETCH_N)
+            session.events.extend(rows)
+            session.events_exhausted_s = now_s if len(rows) < FETCH_N else None
+            if rows:
+                session.read_event_seq = rows[-1].seq
+        if session.events:
+            return session.events.popleft()
+        if not session.status and self._due(session.status_exhausted_s, now_s):
+            status_rows = store.pending_status(after_seq=session.read_status_seq, limit=FETCH_N)
+            session.status.extend(status_rows)
+            session.status_exhausted_s = now_s if len(status_rows) < FETCH_N else None
+            if status_rows:
+                session.read_status_seq = status_rows[-1].seq
+        if session.status:
+            return session.status.popleft()
+        return None
+
+    def _due(self, exhausted_s: float | None, now_s: float) -> bool:
+        """Read the store again: the last read was a full page, or rows came since, or a poll is due."""
+        return exhausted_s is None or now_s - exhausted_s >= self.settings.poll_s
+
+    @staticmethod
+    def _put_back(session: _Session, item: PendingEvent | PendingStatus) -> None:
+        if isinstance(item, PendingEvent):
+            session.events.appendleft(item)
+        else:
+            session.status.appendleft(item)
+
+    def _commit_acks(self, store: EventStore, session: _Session) -> None:
+        if not session.acked_events and not session.acked_status:
+            return
+        store.mark_delivered(session.acked_events, session.acked_status, self._wall_clock())
+        self.counters.delivered_events += len(session.acked_events)
+        self.counters.delivered_status += len(session.acked_status)
+        session.acked_events.clear()
+        session.acked_status.clear()
+
+    def _queue_status(self, store: EventStore) -> None:
+        assert self.status_source is not None
+        message = self.status_source(store.outbox_counts(), self._wall_clock())
+        store.queue_status(message.time_s, dump(message))
+        self.counters.status_queued += 1
+        self._wake.set()
+
+    def _trim(self, store: EventStore) -> None:
+        dropped_status, dropped_events = store.trim_outbox(self.settings.outbox_max_messages, self._wall_clock())
+        if dropped_status or dropped_events:
+            self.counters.dropped_status += dropped_status
+            self.counters.dropped_events += dropped_events
+            self._log.warning(
+                "mqtt outbox full: dropped the oldest undelivered messages",
+                status=dropped_status, events=dropped_events, bound=self.settings.outbox_max_messages,
+            )  # fmt: skip
+            session = self._session
+            if session is not None:  # rows read but not sent may be among the dropped: read again
+                session.events.clear()
+                session.status.clear()
+                session.read_event_seq = max([seq for kind, seq in session.inflight.values() if kind == "event"], default=0)
+                session.read_status_seq = max([seq for kind, seq in session.inflight.values() if kind == "status"], default=0)
+                session.events_exhausted_s = session.status_exhausted_s = None
+        self.outbox = store.outbox_counts()

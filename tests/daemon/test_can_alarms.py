@@ -1,0 +1,146 @@
+"""Alarm frames on CAN: sent on a real python-can virtual bus, decoded back with cantools."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from pathlib import Path
+
+import can
+import cantools
+import pytest
+import structlog.testing
+from can.interfaces.virtual import VirtualBus
+
+from bogiemon.daemon.can_alarms import CanAlarmSink, Heartbeat, alarm_payload, heartbeat_payload, load_alarm_codecs, worst_indicator
+from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.drivers.candb import DbcError, load_layout, shipped_dbc_text
+from bogiemon.drivers.player import PlayError, open_player_bus
+
+DB = cantools.database.load_string(shipped_dbc_text(), database_format="dbc")
+THRESHOLDS = {"i2_norm": {"center": 0.0, "warning": 0.02, "alarm": 0.03}, "i4_norm": {"center": 0.0, "warning": 0.1, "alarm": 0.15}}
+_channels = itertools.count()
+
+
+def channel() -> str:
+    return f"bogiemon-alarms-test-{next(_channels)}"
+
+
+def alarm_event(kind: EventKind, i4_norm: float = 0.2, i2_norm: float = 0.031) -> Event:
+    return Event(time_s=1.7e9, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="c0ffee",
+                 indicators={"i2_norm": i2_norm, "i4_norm": i4_norm}, details={"load": "full", "thresholds": THRESHOLDS})  # fmt: skip
+
+
+def receive(bus: can.BusABC, frame_id: int, n: int, timeout_s: float = 10.0) -> list[can.Message]:
+    got: list[can.Message] = []
+    end_s = time.monotonic() + timeout_s
+    while len(got) < n and time.monotonic() < end_s:
+        message = bus.recv(0.1)
+        if message is not None and message.arbitration_id == frame_id:
+            got.append(message)
+    return got
+
+
+def idle_heartbeat(mode: str = "normal") -> Heartbeat:
+    return Heartbeat(mode=mode, has_window=True, sensors_ok=True, judged=True, gate=None, mqtt_link="up", windows=70_000, events=3, outbox_pending=300)
+
+
+def test_the_shipped_dbc_keeps_the_sensor_layouts_and_defines_the_alarm_frames() -> None:
+    assert load_layout(None, "hub").hub is not None and len(load_layout(None, "per-node").nodes) == 3
+    codecs = load_alarm_codecs()
+    assert (codecs.alarm.frame_id, codecs.alarm.length, codecs.heartbeat.frame_id, codecs.heartbeat.length) == (0x300, 8, 0x301, 8)
+    assert DB.get_message_by_name("BogieAlarm").senders == ["Gateway"]
+
+
+def test_a_dbc_without_the_alarm_frames_is_named(tmp_path: Path) -> None:
+    old = tmp_path / "old.dbc"
+    old.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: Gateway\nBO_ 769 BogieHeartbeat: 8 Gateway\n SG_ Counter : 0|8@1+ (1,0) [0|255] "" Vector__XXX\n')
+    with pytest.raises(DbcError, match=r"old.dbc: no message 'BogieAlarm'"):
+        load_alarm_codecs(old)
+
+
+def test_the_indicator_furthest_beyond_its_alarm_level_is_the_one_sent() -> None:
+    assert worst_indicator(alarm_event(EventKind.CONFIRMED, i4_norm=0.2, i2_norm=0.031)) == ("i4_norm", 0.2)  # 1.33 > 1.03
+    assert worst_indicator(alarm_event(EventKind.CONFIRMED, i4_norm=0.16, i2_norm=0.06)) == ("i2_norm", 0.06)  # 2.0 > 1.07
+    assert worst_indicator(Event(time_s=0, kind=EventKind.CLEARED, severity=DEFAULT_SEVERITY[EventKind.CLEARED], config_hash="c")) == (None, 0.0)
+
+
+def test_encoded_payloads_decode_with_cantools_to_what_was_meant() -> None:
+    codecs = load_alarm_codecs()
+    event = alarm_event(EventKind.CLEARED, i4_norm=-7.5)  # beyond the Value signal's range: clipped
+    decoded = DB.decode_message(0x300, alarm_payload(codecs, event, counter=258))
+    assert decoded["Counter"] == 2 and str(decoded["Kind"]) == "CLEARED" and str(decoded["Severity"]) == "info"
+    assert str(decoded["Indicator"]) == "i4_norm" and decoded["Fired"] == 2
+    assert decoded["Value"] == pytest.approx(-3.2768) and decoded["EventRef"] == int(event.event_id[:6], 16)
+    beat = DB.decode_message(0x301, heartbeat_payload(codecs, idle_heartbeat("confirmed"), counter=7, alarm_counter=300))
+    assert beat == {"Counter": 7, "Mode": beat["Mode"], "SensorsOk": 1, "Judged": 1, "Gate": beat["Gate"], "MqttLink": beat["MqttLink"],
+                    "AlarmCounter": 300 % 256, "Windows": 70_000 % 65536, "Events": 3, "OutboxPending": 255}  # fmt: skip
+    assert (str(beat["Mode"]), str(beat["Gate"]), str(beat["MqttLink"])) == ("confirmed", "none", "up")
+
+
+def test_confirmed_and_cleared_go_on_the_bus_and_nothing_else_does() -> None:
+    name = channel()
+    receiver = VirtualBus(channel=name, receive_own_messages=False)
+    sink = CanAlarmSink(load_alarm_codecs(), "virtual", name, heartbeat_period_s=0.0)
+    sink.start()
+    try:
+        events = [alarm_event(k) for k in (EventKind.SUSPECTED, EventKind.CONFIRMED, EventKind.SENSOR_FAULT, EventKind.CLEARED, EventKind.SENSOR_CLEARED)]
+        for event in events:
+            sink.publish(event)
+        frames = receive(receiver, 0x300, 2)
+        assert receive(receiver, 0x300, 1, timeout_s=0.3) == []  # exactly two
+    finally:
+        sink.close()
+        receiver.shutdown()
+    decoded = [DB.decode_message(f.arbitration_id, f.data) for f in frames]
+    assert [(str(d["Kind"]), d["Counter"], str(d["Severity"])) for d in decoded] == [("CONFIRMED", 1, "alarm"), ("CLEARED", 2, "info")]
+    assert [d["EventRef"] for d in decoded] == [int(events[1].event_id[:6], 16), int(events[3].event_id[:6], 16)]
+    assert all(not f.is_extended_id and f.dlc == 8 for f in frames)
+
+
+def test_the_heartbeat_repeats_the_state_and_the_last_alarm_counter() -> None:
+    name = channel()
+    receiver = VirtualBus(channel=name, receive_own_messages=False)
+    mode = ["normal"]
+    sink = CanAlarmSink(load_alarm_codecs(), "virtual", name, heartbeat_period_s=0.02, heartbeat_source=lambda: idle_heartbeat(mode[0]))
+    sink.start()
+    try:
+        before = [DB.decode_message(0x301, f.data) for f in receive(receiver, 0x301, 3)]
+        mode[0] = "confirmed"
+        sink.publish(alarm_event(EventKind.CONFIRMED))
+        assert len(receive(receiver, 0x300, 1)) == 1
+        receive(receiver, 0x301, 1)  # one that may have been under way
+        after = DB.decode_message(0x301, receive(receiver, 0x301, 1)[0].data)
+    finally:
+        sink.close()
+        receiver.shutdown()
+    assert [b["Counter"] for b in before] == [1, 2, 3]
+    assert all(str(b["Mode"]) == "normal" and b["AlarmCounter"] == 0 for b in before)
+    assert str(after["Mode"]) == "confirmed" and after["AlarmCounter"] == 1
+
+
+def test_a_bus_that_is_not_there_yet_is_retried_quietly_and_the_alarm_waits_for_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    import bogiemon.daemon.can_alarms as can_alarms
+
+    monkeypatch.setattr(can_alarms, "BACKOFF_MIN_S", 0.02)
+    name = channel()
+    receiver = VirtualBus(channel=name, receive_own_messages=False)
+    attempts = []
+
+    def flaky_open(interface: str, chan: str) -> can.BusABC:
+        attempts.append(chan)
+        if len(attempts) < 4:
+            raise PlayError(f"CAN interface '{chan}' does not exist")
+        return open_player_bus(interface, chan)
+
+    with structlog.testing.capture_logs() as logs:
+        sink = CanAlarmSink(load_alarm_codecs(), "virtual", name, heartbeat_period_s=0.0, open_bus=flaky_open)
+        sink.publish(alarm_event(EventKind.CONFIRMED))
+        sink.start()
+        try:
+            frames = receive(receiver, 0x300, 1)
+        finally:
+            sink.close()
+            receiver.shutdown()
+    assert len(frames) == 1 and len(attempts) == 4
+    assert [entry["event"] for entry in logs] == ["CAN alarm bus unusable, retrying", "CAN alarm bus open again"]

@@ -1,0 +1,113 @@
+"""`bogiemon listen`: the back-office consumer as a real process against a real mosquitto."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import paho.mqtt.client as mqtt
+import pytest
+from paho.mqtt.enums import CallbackAPIVersion
+
+from bogiemon.daemon.cli.main import main
+from bogiemon.daemon.delivery.schema import EventMessage, dump
+from tests.daemon.mqtt_broker import Broker, make_password_file
+from tests.daemon.test_mqtt import WAGON, make_events
+
+BOGIEMON = str(Path(sys.executable).with_name("bogiemon"))
+
+
+def publish(port: int, messages: list[tuple[str, str]]) -> None:
+    """Publish with QoS 1 and wait for every PUBACK, as a wagon would."""
+    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="test-wagon", protocol=mqtt.MQTTv5)
+    client.connect("127.0.0.1", port)
+    client.loop_start()
+    try:
+        for info in [client.publish(topic, payload, qos=1) for topic, payload in messages]:
+            info.wait_for_publish(10)
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+def start_listen(port: int, *args: str) -> subprocess.Popen[str]:
+    proc = subprocess.Popen([BOGIEMON, "listen", "--broker", f"127.0.0.1:{port}", "--prefix", "fleet/test", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    assert proc.stderr is not None
+    line = proc.stderr.readline()  # after the SUBACK: what is published from now on reaches it
+    assert "connected to" in line and "subscribed to fleet/test/+/events" in line, line + proc.stderr.read()
+    return proc
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Broker:
+    from tests.daemon.mqtt_broker import ensure_mosquitto
+
+    reason = ensure_mosquitto()
+    if reason is not None:
+        pytest.skip(reason)
+    b = Broker(tmp_path / "broker").start()
+    yield b  # type: ignore[misc]
+    b.kill()
+
+
+def test_listen_prints_each_event_once_and_stores_it_across_runs(tmp_path: Path, broker: Broker) -> None:
+    events = [EventMessage.from_event(WAGON, seq, e) for seq, e in enumerate(make_events(4), start=1)]
+    topic = f"fleet/test/{WAGON}/events"
+    store = tmp_path / "received.sqlite3"
+    proc = start_listen(broker.port, "--json", "--store", str(store), "--count", "3", "--client-id", "t1")
+    publish(broker.port, [(topic, dump(events[0])), (topic, dump(events[0])), (topic, "not json"), (topic, dump(events[1])), (topic, dump(events[2]))])
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    printed = [json.loads(line) for line in out.splitlines()]
+    assert [p["event_id"] for p in printed] == [e.event_id for e in events[:3]]  # the copy is dropped
+    assert printed[0]["schema"] == "bogiemon.event/1" and printed[0]["wagon_id"] == WAGON and printed[0]["seq"] == 1
+    assert "not a valid message" in err
+    # A second run with the same store: an event kept before is a duplicate still.
+    proc = start_listen(broker.port, "--store", str(store), "--count", "1", "--client-id", "t2")
+    publish(broker.port, [(topic, dump(events[1])), (topic, dump(events[3])), (f"fleet/test/{WAGON}/state", "online")])
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert out.splitlines()[0].startswith(f"{WAGON}  #4      ") and events[3].kind in out.splitlines()[0]
+    rows = sqlite3.connect(store).execute("SELECT event_id FROM received ORDER BY n").fetchall()
+    assert [r[0] for r in rows] == [e.event_id for e in events]
+
+
+def test_listen_with_wrong_credentials_ends_with_one_line(tmp_path: Path) -> None:
+    from tests.daemon.mqtt_broker import ensure_mosquitto
+
+    if (reason := ensure_mosquitto()) is not None:
+        pytest.skip(reason)
+    users = make_password_file(tmp_path / "passwords", "office", "right-Pa55")
+    b = Broker(tmp_path / "broker", password_file=users).start()
+    try:
+        (tmp_path / "user").write_text("office\n")
+        (tmp_path / "password").write_text("wrong-Pa55\n")
+        proc = subprocess.run(
+            [BOGIEMON, "listen", "--broker", f"127.0.0.1:{b.port}", "--username-file", str(tmp_path / "user"), "--password-file", str(tmp_path / "password")],
+            capture_output=True, text=True, timeout=20,
+        )  # fmt: skip
+    finally:
+        b.kill()
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("bogiemon: error: the broker refused the credentials (")  # mosquitto says "Not authorized"
+    assert proc.stderr.endswith("): check --username-file and --password-file\n")
+    assert "Pa55" not in proc.stderr + proc.stdout and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["--broker", "localhost"], "--broker: expected HOST:PORT, e.g. localhost:8883, got 'localhost'"),
+        (["--broker", "h:1", "--tls-cert", "c.pem"], "--tls-cert and --tls-key go together"),
+        (["--broker", "h:1", "--password-file", "p"], "--password-file needs --username-file"),
+        (["--broker", "h:1", "--username-file", "/nonexistent/user"], "MQTT username file /nonexistent/user: cannot read it: No such file or directory"),
+        (["--broker", "h:1", "--tls-ca", "/nonexistent/ca.pem"], "CA file /nonexistent/ca.pem: no such file"),
+    ],
+)  # fmt: skip
+def test_listen_argument_errors_are_one_line(args: list[str], expected: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["listen", *args]) == 2
+    assert capsys.readouterr().err == f"bogiemon: error: {expected}\n"
