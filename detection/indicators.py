@@ -27,6 +27,7 @@ from bogiemon.detection.channel_stats import ChannelStats, WindowedChannelStats
 from bogiemon.detection.conditioning import StreamingSOS, butter_sos
 from bogiemon.detection.hops import HopAssembler
 from bogiemon.detection.kinematics import BogieGeometry
+from bogiemon.detection.spectra import WindowedSpectra, WindowSpectra
 from bogiemon.detection.xcorr import StreamingCrossCorrelator, WindowCorrelations
 
 
@@ -79,6 +80,9 @@ class WindowIndicators:
     rms_pitch_radps2: float
     rms_roll_radps2: float
     channels: ChannelStats  # raw statistics of a1, a2, a3, for judging the sensors
+    # Band cross-spectra of a1, a2, a3 after the high-pass (detection/spectra.py); None only in
+    # records built by hand without them.
+    spectra: WindowSpectra | None = None
 
     @property
     def raw(self) -> tuple[float, float, float, float]:
@@ -144,6 +148,7 @@ class IndicatorStream:
             zero_lag_pairs=_ZERO_LAG_PAIRS,
         )
         self._channel_stats = WindowedChannelStats(settings.window_n // settings.hop_n, settings.hop_n, clip_level_mps2)
+        self._spectra = WindowedSpectra(settings.window_n // settings.hop_n, settings.hop_n, settings.fs_hz)
         self.restart(start_s)
 
     def restart(self, start_s: float) -> None:
@@ -154,6 +159,7 @@ class IndicatorStream:
         self._lowpass.reset()
         self._correlator.reset()
         self._channel_stats.reset()
+        self._spectra.reset()
 
     def process(self, accel_mps2: NDArray[np.float64]) -> list[WindowIndicators]:
         return [ind for ind, _ in self.process_with_correlations(accel_mps2)]
@@ -169,13 +175,14 @@ class IndicatorStream:
             stream[:, _A1 : _A3 + 1] = self._highpass.process(hop)
             stream[:, _B : _R + 1] = stream[:, _A1 : _A3 + 1] @ self._to_modal
             stream[:, _P_LP : _R_LP + 1] = self._lowpass.process(stream[:, _P : _R + 1])
+            spectra = self._spectra.push_hop(stream[:, _A1 : _A3 + 1])
             # Whole hops in, so at most one window out, on the same hop as its channel stats.
             for w in self._correlator.push(stream):
-                assert stats is not None
-                out.append((self._indicators(w, stats), w))
+                assert stats is not None and spectra is not None
+                out.append((self._indicators(w, stats, spectra), w))
         return out
 
-    def _indicators(self, w: WindowCorrelations, stats: ChannelStats) -> WindowIndicators:
+    def _indicators(self, w: WindowCorrelations, stats: ChannelStats, spectra: WindowSpectra) -> WindowIndicators:
         fs_hz = self.settings.fs_hz
         start_s = self._start_s + w.start_index / fs_hz
         c_br, c_pr = w.lagged
@@ -202,4 +209,5 @@ class IndicatorStream:
             rms_pitch_radps2=float(sd_p),
             rms_roll_radps2=float(sd_r),
             channels=stats,
+            spectra=spectra,
         )

@@ -15,6 +15,7 @@ from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.detection.conditioning import butter_sos
 from bogiemon.detection.indicators import ProcessingSettings, WindowIndicators
 from bogiemon.detection.kinematics import BogieGeometry
+from bogiemon.detection.spectra import spectra_reference
 from bogiemon.detection.xcorr import xcorr_direct
 
 
@@ -100,6 +101,7 @@ def indicators_reference(
                 rms_pitch_radps2=sd_p,
                 rms_roll_radps2=sd_r,
                 channels=channel_stats_reference(accel_mps2[s : s + n_win], clip_level_mps2),
+                spectra=spectra_reference(high[s : s + n_win], n_hop, settings.fs_hz),
             )
         )
     return out

@@ -5,7 +5,7 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, from_modal
@@ -62,7 +62,8 @@ def test_streaming_core_equals_reference(hops_per_window, hop_s, lag_fraction, s
     accel = np.round(4 * (rng.standard_normal((n, 3)) + GRAVITY)) / 4
     got = run_stream(IndicatorStream(s, geometry, start_s=12.5, clip_level_mps2=11.0), accel, sizes)
     want = indicators_reference(accel, s, geometry, start_s=12.5, clip_level_mps2=11.0)
-    assert any(w.channels.repeat_fraction[0] > 0 and w.channels.clipped_fraction[1] > 0 for w in want)
+    # Only data that exercise the repeat and clip counts (a short window may hold neither).
+    assume(any(w.channels.repeat_fraction[0] > 0 and w.channels.clipped_fraction[1] > 0 for w in want))
     assert_records_close(got, want, rel=1e-9)
 
 

@@ -1,0 +1,173 @@
+"""Band cross-spectra of the three channels per window: the features beyond the paper's four.
+
+The paper's indicators sum every frequency into one number; a corner fault, though, couples the
+modes most in a few bands (where the faulty corner's damper sticks or slides unlike the others)
+and, depending on the band, with either sign, so part of the coupling cancels in C_PR(0). The
+cross-spectral matrix of a1, a2, a3 in octave bands keeps that apart, cheaply, and carries
+everything else the daemon judges: the couplings of bounce, pitch and roll per band (a linear
+map of this matrix), the spectral shape that tells a loaded wagon from an empty one, and the
+rigid-body structure between the channels that a swapped or inverted sensor breaks.
+
+Estimator: per hop, the hop's H high-passed samples of each channel are weighted by a periodic
+Hann window w and transformed, X_i[k] = sum_n w[n] a_i[n] e^(-2 pi i k n / H); per octave band
+
+    S_ij = 2 / (H sum(w^2)) * sum_{k: f_lo <= f_k < f_hi} X_i[k] conj(X_j[k])
+
+(the one-sided cross-spectral density summed over the band's bins times their width: Re S_ii is
+the mean square of a_i in the band, and Re S_ij its zero-lag covariance with a_j). A window's
+matrix is the mean over its hops (Welch's estimate without overlap), so it uses exactly the
+window's samples and is final when its last hop arrives, like the correlations. The same high-pass
+runs on every channel, so its phase cancels in every S_ij.
+
+Sign convention: S_ij = X_i conj(X_j); if a_j(t) = a_i(t - d) then Im S_ij > 0 for small d > 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import fft, signal
+
+from bogiemon.detection.kinematics import BogieGeometry
+
+# Octave bands from the high-pass up to 64 Hz. Above that the simulator's frame spectrum is not
+# representative (no wheelset masses, no track flexibility: docs/simulator.md), and a real wagon's
+# is dominated by wheel and rail defects; nothing judged here should depend on it.
+BANDS_HZ: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+N_BANDS = len(BANDS_HZ) - 1
+# The channel pairs of the off-diagonal entries, in the order stored.
+PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 2))
+
+Triple = tuple[float, float, float]
+
+
+def _triples(values: NDArray[np.float64]) -> tuple[Triple, ...]:
+    return tuple((float(v[0]), float(v[1]), float(v[2])) for v in values)
+
+
+@dataclass(frozen=True)
+class WindowSpectra:
+    """The band cross-spectral matrix of a1, a2, a3 over one window. (m/s^2)^2 per band.
+
+    power[b] = (S_11, S_22, S_33) in band b; cross_re[b], cross_im[b] = the real and imaginary
+    parts of (S_12, S_13, S_23). Bands are [bands_hz[b], bands_hz[b + 1]).
+    """
+
+    bands_hz: tuple[float, ...]
+    power: tuple[Triple, ...]
+    cross_re: tuple[Triple, ...]
+    cross_im: tuple[Triple, ...]
+
+    def matrix(self) -> NDArray[np.complex128]:
+        """(n_bands, 3, 3) Hermitian S_ij."""
+        n = len(self.power)
+        out = np.zeros((n, 3, 3), dtype=np.complex128)
+        power = np.asarray(self.power)
+        cross = np.asarray(self.cross_re) + 1j * np.asarray(self.cross_im)
+        for c in range(3):
+            out[:, c, c] = power[:, c]
+        for p, (i, j) in enumerate(PAIRS):
+            out[:, i, j] = cross[:, p]
+            out[:, j, i] = np.conj(cross[:, p])
+        return out
+
+    @classmethod
+    def from_matrix(cls, matrix: NDArray[np.complex128], bands_hz: tuple[float, ...] = BANDS_HZ) -> WindowSpectra:
+        cross = np.stack([matrix[:, i, j] for i, j in PAIRS], axis=1)
+        return cls(
+            bands_hz=tuple(float(b) for b in bands_hz),
+            power=_triples(np.stack([matrix[:, c, c].real for c in range(3)], axis=1)),
+            cross_re=_triples(cross.real),
+            cross_im=_triples(cross.imag),
+        )
+
+
+def band_bins(n_fft: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ) -> NDArray[np.intp]:
+    """For each rfft bin of an n_fft-point transform, its band index, or -1 outside every band."""
+    freqs = np.fft.rfftfreq(n_fft, 1.0 / fs_hz)
+    index = np.searchsorted(np.asarray(bands_hz), freqs, side="right") - 1
+    index[(freqs < bands_hz[0]) | (freqs >= bands_hz[-1])] = -1
+    return index.astype(np.intp)
+
+
+class WindowedSpectra:
+    """Feed whole hops of (hop_n, 3) conditioned samples; after a full window, each hop returns it."""
+
+    def __init__(self, hops_per_window: int, hop_n: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ) -> None:
+        if hops_per_window < 1 or hop_n < 2:
+            raise ValueError(f"need at least one hop per window and two samples per hop, got {hops_per_window}, {hop_n}")
+        self.hops_per_window = hops_per_window
+        self.hop_n = hop_n
+        self.bands_hz = tuple(float(b) for b in bands_hz)
+        self._taper = signal.get_window("hann", hop_n)
+        self._scale = 2.0 / (hop_n * float(np.sum(self._taper**2)))
+        bins = band_bins(hop_n, fs_hz, self.bands_hz)
+        n_bands = len(self.bands_hz) - 1
+        # Band sums as one small matrix product: (n_bands, n_bins) 0/1 membership.
+        self._membership = np.zeros((n_bands, bins.size))
+        inside = bins >= 0
+        self._membership[bins[inside], np.flatnonzero(inside)] = 1.0
+        # The one-sided density doubles every bin but DC and (for an even hop) Nyquist, which
+        # have no mirror image.
+        self._membership[:, 0] *= 0.5
+        if hop_n % 2 == 0:
+            self._membership[:, -1] *= 0.5
+        self._hops = np.zeros((hops_per_window, n_bands, 3, 3), dtype=np.complex128)
+        self._n_hops = 0
+
+    def reset(self) -> None:
+        self._n_hops = 0
+
+    def push_hop(self, hop: NDArray[np.float64]) -> WindowSpectra | None:
+        spec = fft.rfft(hop * self._taper[:, None], axis=0)  # (bins, 3)
+        products = spec[:, :, None] * np.conj(spec[:, None, :])  # (bins, 3, 3)
+        slot = self._n_hops % self.hops_per_window
+        self._hops[slot] = np.tensordot(self._membership, products, axes=(1, 0)) * self._scale
+        self._n_hops += 1
+        if self._n_hops < self.hops_per_window:
+            return None
+        return WindowSpectra.from_matrix(self._hops.mean(axis=0), self.bands_hz)
+
+
+def spectra_reference(
+    window: NDArray[np.float64], hop_n: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ
+) -> WindowSpectra:
+    """The same matrix of one (n, 3) window of conditioned samples, with scipy.signal.csd.
+
+    Welch's method with non-overlapping Hann segments of hop_n samples and no detrending, as the
+    stream computes it; the density times the bin width, summed over each band's bins.
+    """
+    n_bands = len(bands_hz) - 1
+    matrix = np.zeros((n_bands, 3, 3), dtype=np.complex128)
+    for i in range(3):
+        for j in range(3):
+            # csd(x, y) = conj(X) Y: S_ij = X_i conj(X_j) is csd(a_j, a_i).
+            freqs, density = signal.csd(
+                window[:, j], window[:, i], fs=fs_hz, window="hann", nperseg=hop_n, noverlap=0,
+                detrend=False, scaling="density", average="mean",
+            )  # fmt: skip
+            df_hz = freqs[1] - freqs[0]
+            for b in range(n_bands):
+                inside = (freqs >= bands_hz[b]) & (freqs < bands_hz[b + 1])
+                matrix[b, i, j] = density[inside].sum() * df_hz
+    return WindowSpectra.from_matrix(matrix, bands_hz)
+
+
+# --------------------------------------------------------------------------------------------
+# Derived features: pure functions of a window's matrix.
+
+
+def modal_spectra(matrix: NDArray[np.complex128], geometry: BogieGeometry) -> NDArray[np.complex128]:
+    """(n_bands, 3, 3) cross-spectra of a_bounce, a_pitch, a_roll: T S T^T with T the modal matrix."""
+    t = geometry.modal_matrix()
+    return np.einsum("ai,bij,cj->bac", t, matrix, t)
+
+
+def coherency(matrix: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """S_ij / sqrt(S_ii S_jj) per band: complex, |.| <= 1; NaN where a channel has no power."""
+    power = np.real(np.diagonal(matrix, axis1=1, axis2=2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.sqrt(power[:, :, None] * power[:, None, :])
+        return np.where(norm > 0, matrix / np.where(norm > 0, norm, 1.0), np.nan)
