@@ -66,7 +66,7 @@ class _Prepared:
     preroll_n: int
     total_n: int  # output samples including the pre-roll
     sensor_rng: np.random.Generator
-    healthy_model: VehicleModel  # the suspension before the fault onset (model itself when onset is 0)
+    healthy_model: VehicleModel  # the suspension before the fault onset (model itself when onset is 0): the standing faults only
 
     @property
     def onset_n(self) -> int:
@@ -86,7 +86,7 @@ def preroll_s(scenario: Scenario, model: VehicleModel) -> float:
 
 def _prepare(scenario: Scenario) -> _Prepared:
     assert scenario.parameters is not None
-    model = build_model(scenario.parameters, scenario.load, scenario.faults)
+    model = build_model(scenario.parameters, scenario.load, scenario.standing_faults + scenario.faults)
     track_seed, sensor_seed = np.random.SeedSequence(scenario.seed).spawn(2)
     pre_s = preroll_s(scenario, model)
     preroll_n = int(round(pre_s * scenario.fs_hz))
@@ -110,7 +110,7 @@ def _prepare(scenario: Scenario) -> _Prepared:
         ramp_start_m=first_axle_m + 1.0,
         ramp_length_m=PREROLL_RAMP_M,
     )
-    healthy = build_model(scenario.parameters, scenario.load, ()) if scenario.fault_onset_s > 0 else model
+    healthy = build_model(scenario.parameters, scenario.load, scenario.standing_faults) if scenario.fault_onset_s > 0 else model
     return _Prepared(
         scenario=scenario,
         model=model,

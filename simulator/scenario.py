@@ -122,11 +122,15 @@ class Scenario:
     max_step_s: float = 2.5e-4
     # Every vehicle parameter ({'vehicle': ..., 'fault_cases': ...}); None: the shipped files.
     parameters: dict[str, Any] | None = field(default=None, compare=True, repr=False)
+    # Corners that differ from the nominal from the start, before and after the fault onset: a
+    # wagon's own tolerances (custom faults), on which the `faults` appear at fault_onset_s.
+    standing_faults: tuple[Fault, ...] = ()
 
     def __post_init__(self) -> None:
         if self.parameters is None:
             object.__setattr__(self, "parameters", default_parameter_set())
         object.__setattr__(self, "faults", tuple(self.faults))
+        object.__setattr__(self, "standing_faults", tuple(self.standing_faults))
         if self.load not in LOADS:
             raise SimulationError(f"unknown load '{self.load}': use 'full' or 'tare'")
         if self.track not in TRACKS:
@@ -148,6 +152,8 @@ class Scenario:
         s = self.sensor
         if not (s.noise_mps2 >= 0 and s.quantum_mps2 >= 0 and len(s.bias_mps2) == 3):
             raise SimulationError("sensor noise and quantum must be >= 0 m/s^2 and the bias three values")
+        if len(s.gain) != 3 or not all(math.isfinite(g) and g != 0 for g in s.gain):
+            raise SimulationError(f"sensor gains must be three finite, non-zero values, got {s.gain}")
 
     @property
     def oversampling(self) -> int:
@@ -182,9 +188,11 @@ class Scenario:
                 "noise_mps2": self.sensor.noise_mps2,
                 "bias_mps2": list(self.sensor.bias_mps2),
                 "quantum_mps2": self.sensor.quantum_mps2,
+                "gain": list(self.sensor.gain),
             },
             "max_step_s": self.max_step_s,
             "parameters": self.parameters,
+            "standing_faults": [f.to_dict() for f in self.standing_faults],
         }
 
     @classmethod
@@ -210,9 +218,12 @@ class Scenario:
                     noise_mps2=float(sensor["noise_mps2"]),
                     bias_mps2=tuple(float(b) for b in sensor["bias_mps2"]),  # type: ignore[arg-type]
                     quantum_mps2=float(sensor["quantum_mps2"]),
+                    # Sidecars written before the gain existed: exact sensors.
+                    gain=tuple(float(g) for g in sensor.get("gain", (1.0, 1.0, 1.0))),  # type: ignore[arg-type]
                 ),
                 max_step_s=float(data["max_step_s"]),
                 parameters=data["parameters"],
+                standing_faults=tuple(Fault.from_dict(f) for f in data.get("standing_faults", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, SimulationError):

@@ -6,7 +6,8 @@ Nyquist frequency up) runs at that rate and every `factor`-th sample is kept, so
 the output's Nyquist frequency folds back. Its passband is flat to 0.01 dB up to
 0.2 fs (100 Hz at 500 Hz), -0.4 dB at 0.3 fs, with a group delay of about 4.7 ms at low frequency. The
 same filter runs on the three channels, so its phase cancels in every cross-correlation. Then the sensor's own errors are
-added: a constant bias per channel, white noise, and quantisation to a step (LSB).
+added: a gain per channel (a calibration error; -1 is a sensor mounted upside down), a constant
+bias per channel, white noise, and quantisation to a step (LSB).
 """
 
 from __future__ import annotations
@@ -63,10 +64,13 @@ class SensorModel:
     noise_mps2: float = 0.0  # standard deviation of white noise per output sample
     bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # constant offset per channel
     quantum_mps2: float = 0.0  # quantisation step (LSB); 0 for none
+    # Sensitivity per channel relative to nominal (1.0: exact); it scales gravity too.
+    gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def apply(self, accel_mps2: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.float64]:
         """(n, 3) ideal specific force in, (n, 3) as the sensors report it out."""
-        out = accel_mps2 + np.asarray(self.bias_mps2)
+        out = accel_mps2 if self.gain == (1.0, 1.0, 1.0) else accel_mps2 * np.asarray(self.gain)
+        out = out + np.asarray(self.bias_mps2)
         if self.noise_mps2 > 0:
             out = out + self.noise_mps2 * rng.standard_normal(out.shape)
         if self.quantum_mps2 > 0:
