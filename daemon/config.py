@@ -16,9 +16,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
-from bogiemon.daemon.decision import INDICATOR_FIELDS, DecisionSettings, Threshold
+from bogiemon.daemon.decision import INDICATOR_FIELDS, DecisionSettings, FusedSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
+from bogiemon.daemon.models import Baseline, Levels, LoadModel, shipped_models
 from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
+from bogiemon.detection.features import COUPLING_NAMES
 
 DEFAULT_CONFIG_NAME = "bogiemon.toml"
 
@@ -104,12 +106,40 @@ DEFAULT_THRESHOLDS: dict[str, dict[str, ThresholdConfig]] = {
 }
 
 
+class FusedBaselineConfig(_Section):
+    """A wagon's own healthy baseline of the fused score for one load, written by `bogiemon calibrate`."""
+
+    features: list[str] = Field(default_factory=lambda: list(COUPLING_NAMES))
+    center: list[float]
+    warning: float = Field(gt=0)
+    alarm: float = Field(gt=0)
+    trend_warning: float = Field(gt=0)
+    trend_alarm: float = Field(gt=0)
+    windows: int = Field(0, ge=0)  # the calibration windows it was learned from (for people)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FusedBaselineConfig:
+        if tuple(self.features) != COUPLING_NAMES:
+            raise ValueError(f"features {self.features} are not this bogiemon's {list(COUPLING_NAMES)}: calibrate again")
+        if len(self.center) != len(COUPLING_NAMES):
+            raise ValueError(f"center needs {len(COUPLING_NAMES)} values, got {len(self.center)}")
+        if self.warning > self.alarm or self.trend_warning > self.trend_alarm:
+            raise ValueError(
+                f"warning levels ({self.warning}, trend {self.trend_warning}) must not exceed the alarm levels ({self.alarm}, trend {self.trend_alarm})"
+            )
+        return self
+
+
 class DecisionConfig(_Section):
-    load: LoadState = "full"
+    method: Literal["fused", "thresholds"] = "fused"
+    load: Literal["auto", "full", "tare"] = "auto"
     confirm_k: int = Field(3, ge=1)
     confirm_n: int = Field(5, ge=1, le=100)
     clear_after_windows: int = Field(6, ge=1)
     thresholds: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = Field(default_factory=lambda: DEFAULT_THRESHOLDS)
+    # The wagon's calibrated baselines (none shipped: without one a load is judged against the
+    # fleet's population baseline, config/fused_model.toml).
+    fused: dict[LoadState, FusedBaselineConfig] = Field(default_factory=dict)
 
     @field_validator("thresholds", mode="before")
     @classmethod
@@ -123,8 +153,11 @@ class DecisionConfig(_Section):
     def _consistent(self) -> DecisionConfig:
         if self.confirm_k > self.confirm_n:
             raise ValueError(f"confirm_k ({self.confirm_k}) must not exceed confirm_n ({self.confirm_n})")
-        if not self.thresholds.get(self.load):
-            raise ValueError(f"no thresholds for the load state '{self.load}': add [decision.thresholds.{self.load}.<indicator>]")
+        loads = ("full", "tare") if self.load == "auto" else (self.load,)
+        if self.method == "thresholds":
+            for load in loads:
+                if not self.thresholds.get(load):
+                    raise ValueError(f"no thresholds for the load state '{load}': add [decision.thresholds.{load}.<indicator>]")
         return self
 
 
@@ -135,9 +168,14 @@ class HealthConfig(_Section):
     stuck_repeat_fraction: float = Field(0.2, gt=0, le=1)
     clip_level_mps2: float = Field(155.0, gt=0)
     clipped_fraction: float = Field(1e-4, gt=0, le=1)
-    noise_ratio: float = Field(4.0, gt=1)
+    noise_ratio: float = Field(2.0, gt=1)
+    noise_low_band_ratio: float = Field(3.2, gt=1)
     max_rms_mps2: float = Field(50.0, gt=0)
     max_gaps_per_hour: int = Field(6, ge=0)
+    gravity_mps2: float = Field(9.81, gt=0)
+    structure_checks: bool = True
+    layout_low_coherence: float = Field(-0.2, ge=-1, le=0)
+    layout_diagonal_coherence: float = Field(-0.3, ge=-1, le=0)
     clear_after_windows: int = Field(3, ge=1)
 
 
@@ -322,7 +360,34 @@ class BogiemonConfig(_Section):
             load: {name: Threshold(warning=t.warning, alarm=t.alarm, center=t.center) for name, t in per.items()}
             for load, per in d.thresholds.items()
         }
-        return DecisionSettings(thresholds, d.confirm_k, d.confirm_n, d.clear_after_windows)
+        return DecisionSettings(thresholds, d.confirm_k, d.confirm_n, d.clear_after_windows, d.method, self.fused_settings())
+
+    def fused_baselines(self) -> dict[str, Baseline]:
+        """Per load: the wagon's calibrated baseline if the config has one, else the fleet's."""
+        models = shipped_models().fused
+        out = {}
+        for load, model in models.items():
+            own = self.decision.fused.get(load)  # type: ignore[call-overload]
+            out[load] = model.calibrated(own.center, Levels(own.warning, own.alarm, own.trend_warning, own.trend_alarm)) if own is not None else model.population()
+        return out
+
+    def fused_settings(self) -> FusedSettings:
+        return FusedSettings(self.fused_baselines(), shipped_models().signatures, self.bogie_geometry(), self.processing.hop_s)
+
+    def check_models(self) -> None:
+        """The fused method needs the windows its shipped model was fitted on; ConfigError if not."""
+        if self.decision.method != "fused":
+            return
+        model = shipped_models().fused["full"]
+        if not model.fits(self.processing_settings()):
+            raise ConfigError(
+                f"decision.method 'fused': its model (config/fused_model.toml) was fitted on windows of "
+                f"{model.window_s:g} s every {model.hop_s:g} s, the config has {self.processing.window_s:g} s every "
+                f"{self.processing.hop_s:g} s: use those, or decision.method = \"thresholds\""
+            )
+
+    def load_model(self) -> LoadModel:
+        return shipped_models().load
 
     def bogie_geometry(self) -> BogieGeometry:
         return BogieGeometry(

@@ -1,21 +1,44 @@
-"""The suspension decision: thresholds per load and indicator, k-of-n confirmation, hysteresis.
+"""The suspension decision: a level per judged window, a trend over hours, k-of-n confirmation,
+hysteresis, diagnosis.
+
+Two methods give each window its level (`decision.method`):
+
+- "fused" (the default): the Mahalanobis distance of the window's coupling vector (pitch-roll and
+  bounce-roll coherency in octave bands, detection/features.py) from a healthy baseline,
+  score = |z|^2 with z = L (x - center). The center is the wagon's own, learned by `bogiemon
+  calibrate` from its healthy recordings; the spread L is shipped (config/fused_model.toml). A
+  wagon without calibration is judged against the fleet's population baseline, with the fleet's
+  wider spread: far less sensitive (docs/robust/README.md has the numbers).
+  The same whitened shifts feed THE TREND: an exponentially weighted mean of z over the judged
+  windows with a time constant of trend_tau_s of running, trend = |mean|^2. A healthy wagon's
+  couplings move with track and speed (its own tolerances couple the modes differently in
+  each condition), and a fault's shift is as large as that movement in any one window; across
+  many conditions the healthy movement averages out and a standing fault does not. So a window
+  alarm catches a gross fault within minutes, the trend a moderate one within hours.
+- "thresholds": the paper's indicators one by one, each against a warning and an alarm level on
+  |value - center| (the raw I1..I4 or the normalised I1n..I4n, per load). No trend.
+
+A CONFIRMED event carries what triggered it ("windows" or "trend") and a diagnosis
+(daemon/diagnosis.py): the likely corner and kind of the fault from the coupling shift that
+confirmed it (the alarm windows', or the trend's mean), or "unknown".
 
 State machine, advanced once per judged window (gated windows and windows with a sensor
 problem are not judged and change nothing):
 
-    NORMAL    --a window at or above a warning level-->          SUSPECTED  (event SUSPECTED)
-    NORMAL or SUSPECTED --k of the last n judged windows at or
-                          above an alarm level-->                CONFIRMED  (event CONFIRMED)
-    SUSPECTED or CONFIRMED --clear_after consecutive judged
-                          windows below every warning level-->   NORMAL     (event CLEARED)
+    NORMAL    --a window (or the trend) at or above a warning level-->    SUSPECTED  (event SUSPECTED)
+    NORMAL or SUSPECTED --k of the last n judged windows at or above an
+                          alarm level, or the trend at its alarm level-->  CONFIRMED  (event CONFIRMED)
+    SUSPECTED or CONFIRMED --clear_after consecutive judged windows below
+                          every warning level, the trend below its own-->  NORMAL     (event CLEARED)
 
 A threshold applies to the deviation |value - center| of one indicator; the warning level is
-below the alarm level, and clearing needs every indicator back below warning: that gap is the
+below the alarm level, and clearing needs every value back below warning: that gap is the
 hysteresis. The state is a plain dict so the service can store it with each event.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from collections import deque
@@ -23,10 +46,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
+from bogiemon.daemon.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.detection import WindowIndicators
+from bogiemon.daemon.models import Baseline, SignatureSet, coupling_features
+from bogiemon.detection import BogieGeometry, WindowIndicators
 
 INDICATOR_FIELDS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
+METHODS = ("fused", "thresholds")
+FUSED_SCORE = "fused_score"  # the fused method's value in judgements and events
+FUSED_TREND = "fused_trend"  # its trend
 
 
 class Level(enum.IntEnum):
@@ -63,15 +93,36 @@ class Threshold:
 
 
 @dataclass(frozen=True)
+class FusedSettings:
+    """What the fused score and the diagnosis need: per load the baseline in force and the
+    fault signatures, and the sensors' geometry for the coupling vector."""
+
+    baselines: Mapping[str, Baseline]
+    signatures: Mapping[str, SignatureSet]
+    geometry: BogieGeometry
+    hop_s: float  # between windows: the trend's weight per judged window follows from it
+
+    def trend_weight(self, load: str) -> float:
+        """The weight of one judged window in the trend's exponentially weighted mean."""
+        return 1.0 - math.exp(-self.hop_s / self.baselines[load].trend_tau_s)
+
+
+@dataclass(frozen=True)
 class DecisionSettings:
     thresholds: Mapping[str, Mapping[str, Threshold]]  # load state -> indicator field -> threshold
     confirm_k: int = 3
     confirm_n: int = 5
     clear_after_windows: int = 6
+    method: str = "thresholds"
+    fused: FusedSettings | None = None  # needed by "fused"; with "thresholds" it adds the diagnosis
 
     def __post_init__(self) -> None:
         if not 1 <= self.confirm_k <= self.confirm_n:
             raise ValueError(f"need 1 <= confirm_k <= confirm_n, got {self.confirm_k} of {self.confirm_n}")
+        if self.method not in METHODS:
+            raise ValueError(f"unknown decision method '{self.method}': use one of {', '.join(METHODS)}")
+        if self.method == "fused" and self.fused is None:
+            raise ValueError("the fused method needs its baselines (FusedSettings)")
         for load, per_indicator in self.thresholds.items():
             unknown = set(per_indicator) - set(INDICATOR_FIELDS)
             if unknown:
@@ -80,13 +131,22 @@ class DecisionSettings:
 
 @dataclass(frozen=True)
 class Judgement:
-    """What one judged window showed: each thresholded indicator's value and level."""
+    """What one judged window showed: each judged value (indicators, or the fused score) and its
+    level; and the window's whitened coupling shift when a baseline was at hand (for diagnosis)."""
 
     values: Mapping[str, float]
     levels: Mapping[str, Level]
+    shift: tuple[float, ...] | None = None
+    baseline: str | None = None  # "calibrated" or "population": the fused baseline in force
+    # The judged value farthest from healthy as a fraction of its alarm level (>= 1: alarm):
+    # one number per window, comparable across methods (the evaluation's figures use it).
+    alarm_ratio: float = math.nan
+    trend: float = math.nan  # the fused trend after this window (NaN: no trend)
+    trend_level: Level = Level.OK
 
     @property
     def worst(self) -> Level:
+        """The worst level of the window's own values (not the trend's)."""
         return max(self.levels.values(), default=Level.OK)
 
     def at_or_above(self, level: Level) -> dict[str, float]:
@@ -98,15 +158,38 @@ class DecisionState:
     mode: Mode = Mode.NORMAL
     recent_alarms: deque[bool] = field(default_factory=deque)
     clean_streak: int = 0
+    # The whitened coupling shifts of the recent windows at alarm level (None: no shift known),
+    # aligned with recent_alarms' alarm entries: what a diagnosis at confirmation averages.
+    recent_shifts: deque[list[float] | None] = field(default_factory=deque)
+    # Per load state: the trend's weighted mean of z and the fingerprint of the baseline it was
+    # accumulated against (a new calibration restarts it from healthy, zero).
+    trend_mean: dict[str, list[float]] = field(default_factory=dict)
+    trend_baseline: dict[str, str] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"mode": self.mode.value, "recent_alarms": list(self.recent_alarms), "clean_streak": self.clean_streak}
+        return {
+            "mode": self.mode.value,
+            "recent_alarms": list(self.recent_alarms),
+            "clean_streak": self.clean_streak,
+            "recent_shifts": [None if v is None else list(v) for v in self.recent_shifts],
+            "trend_mean": {k: list(v) for k, v in self.trend_mean.items()},
+            "trend_baseline": dict(self.trend_baseline),
+        }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> DecisionState:
         if not data:
             return cls()
-        return cls(Mode(data["mode"]), deque(bool(v) for v in data["recent_alarms"]), int(data["clean_streak"]))
+        # States saved by older versions lack the shifts and the trend: they start empty.
+        shifts = deque(None if v is None else [float(x) for x in v] for v in data.get("recent_shifts", []))
+        return cls(
+            Mode(data["mode"]),
+            deque(bool(v) for v in data["recent_alarms"]),
+            int(data["clean_streak"]),
+            shifts,
+            {str(k): [float(x) for x in v] for k, v in data.get("trend_mean", {}).items()},
+            {str(k): str(v) for k, v in data.get("trend_baseline", {}).items()},
+        )
 
 
 class Decider:
@@ -118,39 +201,124 @@ class Decider:
         self.state = state or DecisionState()
         # A reload may shrink n: keep only what still fits.
         self.state.recent_alarms = deque(self.state.recent_alarms, maxlen=settings.confirm_n)
+        self.state.recent_shifts = deque(self.state.recent_shifts, maxlen=settings.confirm_n)
 
     def judge(self, window: WindowIndicators, load: str) -> Judgement:
+        fused = self.settings.fused
+        baseline = fused.baselines.get(load) if fused is not None else None
+        x = coupling_features(window, fused.geometry) if fused is not None else None
+        shift = None if baseline is None or x is None else tuple(float(v) for v in baseline.whiten(x))
+        name = None if baseline is None else baseline.name
+        if self.settings.method == "fused":
+            if baseline is None:
+                raise KeyError(f"no fused baseline for load state '{load}'")
+            if shift is None:  # no spectra, or a mode without power: nothing to judge by
+                return Judgement({FUSED_SCORE: math.nan}, {FUSED_SCORE: Level.OK}, None, name)
+            score = float(np.dot(shift, shift))
+            level = Level.ALARM if score >= baseline.alarm else Level.WARNING if score >= baseline.warning else Level.OK
+            return Judgement({FUSED_SCORE: score}, {FUSED_SCORE: level}, shift, name, score / baseline.alarm)
         thresholds = self.settings.thresholds.get(load)
         if thresholds is None:
             raise KeyError(f"no thresholds for load state '{load}'")
-        values = {name: float(getattr(window, name)) for name in thresholds}
-        levels = {name: thresholds[name].level(v) if math.isfinite(v) else Level.OK for name, v in values.items()}
-        return Judgement(values, levels)
+        values = {n: float(getattr(window, n)) for n in thresholds}
+        levels = {n: thresholds[n].level(v) if math.isfinite(v) else Level.OK for n, v in values.items()}
+        ratios = [abs(v - thresholds[n].center) / thresholds[n].alarm for n, v in values.items() if math.isfinite(v)]
+        return Judgement(values, levels, shift, name, max(ratios, default=math.nan))
 
-    def update(self, window: WindowIndicators, load: str) -> tuple[Judgement, list[Event]]:
-        """Advance the state machine with one judgeable window; return its judgement and events."""
-        judgement = self.judge(window, load)
+    def update(self, window: WindowIndicators, load: str, context: Mapping[str, Any] | None = None) -> tuple[Judgement, list[Event]]:
+        """Advance the state machine with one judgeable window; return its judgement and events.
+
+        context: more details for the events (e.g. how the load state was decided).
+        """
+        judgement = self._with_trend(self.judge(window, load), load)
         s, cfg = self.state, self.settings
-        s.recent_alarms.append(judgement.worst >= Level.ALARM)
-        s.clean_streak = 0 if judgement.worst >= Level.WARNING else s.clean_streak + 1
+        alarm = judgement.worst >= Level.ALARM
+        s.recent_alarms.append(alarm)
+        s.recent_shifts.append(list(judgement.shift) if alarm and judgement.shift is not None else None)
+        warned = judgement.worst >= Level.WARNING or judgement.trend_level >= Level.WARNING
+        s.clean_streak = 0 if warned else s.clean_streak + 1
         events: list[Event] = []
-        details = {"load": load, "window_start_s": window.start_s, "window_end_s": window.end_s, "thresholds": self._limits(load)}
+        details = {
+            "load": load, **(context or {}), "method": cfg.method, "window_start_s": window.start_s, "window_end_s": window.end_s,
+            "thresholds": self._limits(load),
+        }  # fmt: skip
+        if judgement.baseline is not None:
+            details["baseline"] = judgement.baseline
+        if math.isfinite(judgement.trend):
+            details["trend"] = judgement.trend
 
-        if s.mode is not Mode.CONFIRMED and sum(s.recent_alarms) >= cfg.confirm_k:
+        by_windows = sum(s.recent_alarms) >= cfg.confirm_k
+        by_trend = judgement.trend_level >= Level.ALARM
+        if s.mode is not Mode.CONFIRMED and (by_windows or by_trend):
             s.mode = Mode.CONFIRMED
-            fired = judgement.at_or_above(Level.ALARM) or judgement.at_or_above(Level.WARNING)
-            events.append(self._event(window, EventKind.CONFIRMED, fired, {**details, "alarm_windows": f"{sum(s.recent_alarms)} of {len(s.recent_alarms)}"}))
-        elif s.mode is Mode.NORMAL and judgement.worst >= Level.WARNING:
+            if by_windows:
+                fired = judgement.at_or_above(Level.ALARM) or judgement.at_or_above(Level.WARNING)
+                diagnosis = self.diagnosis(load)
+            else:
+                fired = {FUSED_TREND: judgement.trend}
+                diagnosis = self.trend_diagnosis(load)
+            events.append(
+                self._event(
+                    window, EventKind.CONFIRMED, fired,
+                    {**details, "trigger": "windows" if by_windows else "trend",
+                     "alarm_windows": f"{sum(s.recent_alarms)} of {len(s.recent_alarms)}", "diagnosis": diagnosis.as_dict()},
+                )  # fmt: skip
+            )
+        elif s.mode is Mode.NORMAL and warned:
             s.mode = Mode.SUSPECTED
-            events.append(self._event(window, EventKind.SUSPECTED, judgement.at_or_above(Level.WARNING), details))
+            fired = judgement.at_or_above(Level.WARNING) or {FUSED_TREND: judgement.trend}
+            events.append(self._event(window, EventKind.SUSPECTED, fired, details))
         elif s.mode is not Mode.NORMAL and s.clean_streak >= cfg.clear_after_windows:
             previous = s.mode
             s.mode = Mode.NORMAL
             s.recent_alarms.clear()
+            s.recent_shifts.clear()
             events.append(self._event(window, EventKind.CLEARED, judgement.values, {**details, "cleared": previous.value}))
         return judgement, events
 
+    def _with_trend(self, judgement: Judgement, load: str) -> Judgement:
+        """Advance the load state's trend with the window's shift; the judgement with the trend."""
+        fused = self.settings.fused
+        if self.settings.method != "fused" or fused is None or load not in fused.baselines:
+            return judgement
+        baseline = fused.baselines[load]
+        s = self.state
+        if s.trend_baseline.get(load) != baseline.fingerprint or len(s.trend_mean.get(load, ())) != baseline.center.size:
+            s.trend_mean[load] = [0.0] * baseline.center.size  # a new baseline: healthy until shown otherwise
+            s.trend_baseline[load] = baseline.fingerprint
+        mean = np.asarray(s.trend_mean[load])
+        if judgement.shift is not None:
+            mean = mean + fused.trend_weight(load) * (np.asarray(judgement.shift) - mean)
+            s.trend_mean[load] = [float(v) for v in mean]
+        trend = float(mean @ mean)
+        lv = baseline.levels
+        level = Level.ALARM if trend >= lv.trend_alarm else Level.WARNING if trend >= lv.trend_warning else Level.OK
+        return dataclasses.replace(judgement, trend=trend, trend_level=level)
+
+    def diagnosis(self, load: str) -> Diagnosis:
+        """The diagnosis from the alarm windows of the current history (NO_EVIDENCE without them)."""
+        fused = self.settings.fused
+        shifts = [v for v in self.state.recent_shifts if v is not None]
+        if fused is None or load not in fused.signatures or not shifts:
+            return NO_EVIDENCE
+        return diagnose(shifts, fused.signatures[load])
+
+    def trend_diagnosis(self, load: str) -> Diagnosis:
+        """The diagnosis from the trend's mean shift: many windows' evidence in one vector."""
+        fused = self.settings.fused
+        mean = self.state.trend_mean.get(load)
+        if fused is None or load not in fused.signatures or not mean:
+            return NO_EVIDENCE
+        return diagnose([mean], fused.signatures[load])
+
     def _limits(self, load: str) -> dict[str, dict[str, float]]:
+        if self.settings.method == "fused":
+            assert self.settings.fused is not None
+            lv = self.settings.fused.baselines[load].levels
+            return {
+                FUSED_SCORE: {"center": 0.0, "warning": lv.warning, "alarm": lv.alarm},
+                FUSED_TREND: {"center": 0.0, "warning": lv.trend_warning, "alarm": lv.trend_alarm},
+            }
         return {n: {"center": t.center, "warning": t.warning, "alarm": t.alarm} for n, t in self.settings.thresholds[load].items()}
 
     def _event(self, window: WindowIndicators, kind: EventKind, fired: Mapping[str, float], details: Mapping[str, Any]) -> Event:

@@ -4,18 +4,35 @@ A stuck or dead channel creates exactly the asymmetry the indicators look for, s
 is checked here first. A window is judged only when the wagon runs with enough excitation and
 every sensor looks healthy; otherwise it is gated (standstill, weak excitation) or the sensors
 are at fault (a SENSOR_FAULT, never a suspension alarm).
+
+A sensor mounted upside down or two cables swapped after maintenance give healthy-looking
+channels whose bounce, pitch and roll are wrong, and strong couplings: fault-like. Two checks:
+- Gravity: a vertical accelerometer reads about +9.81 m/s^2 of mean; one reading about -9.81
+  while another reads +9.81 is upside down. (Recordings without gravity skip this check.)
+- The rigid frame's structure in the window's band cross-spectra, for the configured corners
+  (detection/features.py: layout_statistics): at 0.5-2 Hz every corner follows the carbody,
+  so each channel correlates positively with the others (an inverted one negatively); at
+  16-64 Hz the frame pitches and rolls about its centre, held by the centre bowl, so the two
+  diagonal corners move in opposition (coherency near -1, the other pairs not); at 0.5-4 Hz
+  bounce and pitch are in quadrature (the rear axle meets the track 2l/v after the front one),
+  bounce and roll much less. When the configured layout fails these and another assignment of
+  the channels to the corners (with or without a sign flip) passes all of them, the channels it
+  moves are "swapped" and those it flips "inverted". The thresholds hold with margin on every
+  healthy and faulty window of the simulated fleets (docs/robust/README.md).
 """
 
 from __future__ import annotations
 
 import enum
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.detection import WindowIndicators
+from bogiemon.detection import BogieGeometry, WindowIndicators
+from bogiemon.detection.features import LayoutStatistics, layout_statistics
 from bogiemon.drivers.base import SensorStatus
 
 CHANNELS = ("a1", "a2", "a3")
@@ -29,6 +46,8 @@ class SensorProblem(enum.Enum):
     OVER_RANGE = "over_range"  # the sensor's own over-range bit
     SENSOR_FAULT_BIT = "sensor_fault_bit"  # the sensor's own fault bit
     DROPOUTS = "dropouts"  # the source loses samples too often
+    INVERTED = "inverted"  # reads upside down (mounted so, or its sign wired so)
+    SWAPPED = "swapped"  # its signal belongs to another corner than the config names
 
 
 class Gate(enum.Enum):
@@ -44,9 +63,14 @@ class HealthSettings:
     stuck_repeat_fraction: float = 0.2  # share of samples equal to the previous one
     clip_level_mps2: float = 155.0  # |a| at or above this is clipping (16 g full scale = 156.9)
     clipped_fraction: float = 1e-4  # share of clipped samples that makes a channel unusable
-    noise_ratio: float = 4.0  # a channel's RMS over the median of the three
+    noise_ratio: float = 2.0  # a channel's RMS over the median of the three
+    noise_low_band_ratio: float = 3.2  # a channel's power at 0.5-1 Hz over the median of the three
     max_rms_mps2: float = 50.0  # no bogie frame in service gives this much RMS
     max_gaps_per_hour: int = 6  # more gaps than this in the last hour: dropouts
+    gravity_mps2: float = 9.81  # a channel's mean below -half of it, another's above +half: inverted
+    structure_checks: bool = True  # the checks that assume a real frame's spectra: layout, low-band noise
+    layout_low_coherence: float = -0.2  # a channel's 0.5-2 Hz coherency with both others below: inverted
+    layout_diagonal_coherence: float = -0.3  # the diagonal pair's 16-64 Hz coherency must stay below
 
 
 @dataclass(frozen=True)
@@ -65,12 +89,62 @@ class WindowHealth:
         return self.gate is None and self.sensors_ok
 
 
+def layout_margin(stats: LayoutStatistics, settings: HealthSettings) -> float:
+    """How clearly one assignment of the channels passes the structure checks (< 0: it fails one)."""
+    return min(
+        min(stats.low_coherence) - settings.layout_low_coherence,
+        settings.layout_diagonal_coherence - stats.diagonal_coherence,
+        stats.other_coherence - stats.diagonal_coherence,
+        stats.quadrature_bp - stats.quadrature_br,
+    )
+
+
+# Every assignment of the three channels to the configured corners, with signs; a sign flip of all
+# three is the same structure, so the first channel keeps its sign (gravity tells that one apart).
+_HYPOTHESES = tuple(
+    (perm, signs) for perm in itertools.permutations(range(3)) for signs in itertools.product((1.0, -1.0), repeat=3) if signs[0] > 0
+)
+
+
+def layout_problems(window: WindowIndicators, geometry: BogieGeometry, settings: HealthSettings) -> dict[str, list[SensorProblem]]:
+    """Channels whose data do not fit the configured corners: {"a2": [SWAPPED], ...}; {} when they fit.
+
+    Reported only when the configured layout fails a check and another assignment passes all.
+    """
+    assert window.spectra is not None
+    matrix = window.spectra.matrix()
+    identity = layout_margin(layout_statistics(matrix, geometry), settings)
+    if identity >= 0:
+        return {}
+    best, best_margin = None, 0.0
+    for perm, signs in _HYPOTHESES:
+        if perm == (0, 1, 2) and signs == (1.0, 1.0, 1.0):
+            continue
+        margin = layout_margin(layout_statistics(matrix, geometry, perm, signs), settings)
+        if margin > best_margin:
+            best, best_margin = (perm, signs), margin
+    if best is None:
+        return {}
+    perm, signs = best
+    if sum(s < 0 for s in signs) > 1:  # the same structure with every sign flipped: fewer inverted
+        signs = tuple(-s for s in signs)
+    out: dict[str, list[SensorProblem]] = {}
+    for corner_index, (channel, sign) in enumerate(zip(perm, signs, strict=True)):
+        if channel != corner_index:
+            out.setdefault(CHANNELS[channel], []).append(SensorProblem.SWAPPED)
+        if sign < 0:
+            out.setdefault(CHANNELS[channel], []).append(SensorProblem.INVERTED)
+    return out
+
+
 def assess_window(
     window: WindowIndicators,
     settings: HealthSettings,
     status: tuple[SensorStatus, SensorStatus, SensorStatus] = (SensorStatus.OK,) * 3,
     gaps_last_hour: int = 0,
+    geometry: BogieGeometry | None = None,
 ) -> WindowHealth:
+    """The verdict on one window; with the sensors' geometry also the layout check."""
     rms = np.array(window.rms_mps2)
     stats = window.channels
     problems: dict[str, list[SensorProblem]] = {}
@@ -80,6 +154,10 @@ def assess_window(
 
     standstill = bool(np.all(rms < settings.standstill_rms_mps2))
     median_rms = float(np.median(rms))
+    # Sensor noise is white: it fills the lowest band, where the frame moves least and every
+    # corner alike (it follows the carbody), long before it shows in the channel's RMS.
+    low_power = np.array(window.spectra.power[0]) if window.spectra is not None and settings.structure_checks else None
+    low_median = float(np.median(low_power)) if low_power is not None else 0.0
     for c, name in enumerate(CHANNELS):
         if SensorStatus.SENSOR_FAULT in status[c]:
             flag(name, SensorProblem.SENSOR_FAULT_BIT)
@@ -89,6 +167,8 @@ def assess_window(
             flag(name, SensorProblem.CLIPPING)
         if rms[c] > settings.max_rms_mps2 or (median_rms > 0 and rms[c] > settings.noise_ratio * median_rms):
             flag(name, SensorProblem.NOISY)
+        elif low_power is not None and low_median > 0 and low_power[c] > settings.noise_low_band_ratio * low_median:
+            flag(name, SensorProblem.NOISY)
         if not standstill:  # a quiet channel is only suspicious while another one moves
             if rms[c] < settings.flat_rms_mps2:
                 flag(name, SensorProblem.FLAT)
@@ -96,12 +176,22 @@ def assess_window(
                 flag(name, SensorProblem.STUCK)
     if gaps_last_hour > settings.max_gaps_per_hour:
         flag("source", SensorProblem.DROPOUTS)
+    means = np.array(stats.mean_mps2)
+    upright = bool(np.any(means > settings.gravity_mps2 / 2))
+    for c, name in enumerate(CHANNELS):
+        if upright and means[c] < -settings.gravity_mps2 / 2:
+            flag(name, SensorProblem.INVERTED)
 
     gate = None
     if standstill:
         gate = Gate.STANDSTILL
     elif median_rms < settings.min_excitation_rms_mps2:
         gate = Gate.WEAK_EXCITATION
+    # The structure needs a moving wagon; a channel already at fault would mislead it.
+    if gate is None and not problems and settings.structure_checks and geometry is not None and window.spectra is not None:
+        for name, found in layout_problems(window, geometry, settings).items():
+            for problem in found:
+                flag(name, problem)
     return WindowHealth(gate=gate, problems={k: tuple(v) for k, v in problems.items()})
 
 
@@ -132,6 +222,11 @@ class HealthTracker:
         self.config_hash = config_hash
         self.clear_after_windows = clear_after_windows
         self.state = state or HealthState(reported={})
+
+    @property
+    def faulted(self) -> bool:
+        """A SENSOR_FAULT is reported and not yet cleared."""
+        return bool(self.state.reported)
 
     def update(self, window: WindowIndicators, health: WindowHealth) -> list[Event]:
         s = self.state

@@ -1,8 +1,10 @@
 """The monitor: blocks in, events out. The same object serves `run` and `replay`.
 
 Per block it restarts the windows at a gap and feeds the detection core; per window it checks the
-sensors and the gating, advances the suspension decision, commits the resulting events (with the
-decision state) to the event store and only then reports them to the sinks.
+sensors and the gating, decides the load state (configured, or estimated from the window's
+spectral shape with `decision.load = "auto"`), advances the suspension decision, commits the
+resulting events (with the decision state) to the event store and only then reports them to the
+sinks. The per-window judgement without the store (WindowJudge) also serves the evaluation.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Any
 from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Judgement
 from bogiemon.daemon.events import Event
 from bogiemon.daemon.health import HealthSettings, HealthState, HealthTracker, WindowHealth, assess_window
+from bogiemon.daemon.models import LoadModel
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.daemon.store import EventStore
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings, WindowIndicators
@@ -30,9 +33,14 @@ class MonitorSettings:
     geometry: BogieGeometry
     health: HealthSettings
     decision: DecisionSettings
-    load: str
+    load: str  # "full", "tare" or "auto" (estimated per window by load_model)
     config_hash: str
     sensor_clear_after_windows: int = 3
+    load_model: LoadModel | None = None
+
+    def __post_init__(self) -> None:
+        if self.load == "auto" and self.load_model is None:
+            raise ValueError("load 'auto' needs the load model")
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,8 @@ class WindowReport:
     judgement: Judgement | None  # None when the window was not judged
     mode: str
     events: tuple[Event, ...]
+    load: str | None = None  # the load state the window was judged in
+    p_full: float | None = None  # the estimated probability of full load (load "auto")
 
 
 @dataclass
@@ -51,11 +61,65 @@ class MonitorCounters:
     blocks: int = 0
     samples: int = 0
     segments: int = 0  # continuous stretches: the first block and every gap start one
+    # Every window is judged, gated (standstill, weak excitation) or held by the sensors (a problem
+    # in it, or a sensor fault not yet cleared): windows == judged + gated + sensor_fault_windows.
     windows: int = 0
     judged: int = 0
     gated: int = 0
     sensor_fault_windows: int = 0
     events: int = 0
+
+
+@dataclass(frozen=True)
+class JudgedWindow:
+    """What WindowJudge concluded about one window."""
+
+    health: WindowHealth
+    judgement: Judgement | None
+    events: list[Event]
+    load: str | None
+    p_full: float | None
+
+
+class WindowJudge:
+    """Sensor health, gating, load state and the suspension decision for one window at a time.
+
+    Holds the decision and health state; no store, no sinks (Monitor adds those).
+    """
+
+    def __init__(self, settings: MonitorSettings, decision: DecisionState | None = None, health: HealthState | None = None) -> None:
+        self.settings = settings
+        self.decider = Decider(settings.decision, settings.config_hash, decision)
+        self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, health)
+
+    def reconfigure(self, settings: MonitorSettings) -> None:
+        self.settings = settings
+        self.decider = Decider(settings.decision, settings.config_hash, self.decider.state)
+        self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, self.health.state)
+
+    def judge(
+        self,
+        window: WindowIndicators,
+        status: tuple[SensorStatus, SensorStatus, SensorStatus] = (SensorStatus.OK,) * 3,
+        gaps_last_hour: int = 0,
+    ) -> JudgedWindow:
+        s = self.settings
+        health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
+        events = self.health.update(window, health)
+        # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
+        # window's checks (noise that the track's own excitation hides) and still couple the modes.
+        if not health.judgeable or self.health.faulted:
+            return JudgedWindow(health, None, events, None, None)
+        load, p_full, context = s.load, None, {"load_source": "configured"}
+        if s.load == "auto":
+            assert s.load_model is not None
+            p_full = s.load_model.probability_full(window, s.geometry)
+            # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on
+            # the simulated fleets (docs/robust/README.md): no third state is needed.
+            load = "full" if p_full >= 0.5 else "tare"
+            context = {"load_source": "estimated", "p_full": round(p_full, 4)}
+        judgement, decided = self.decider.update(window, load, context)
+        return JudgedWindow(health, judgement, events + decided, load, p_full)
 
 
 class Monitor:
@@ -72,10 +136,7 @@ class Monitor:
         self.counters = MonitorCounters()
         self.latest: WindowReport | None = None
         saved = store.get_state(STATE_KEY) or {}
-        self._decider = Decider(settings.decision, settings.config_hash, DecisionState.from_dict(saved.get("decision")))
-        self._health = HealthTracker(
-            settings.config_hash, settings.sensor_clear_after_windows, HealthState.from_dict(saved.get("health"))
-        )
+        self._judge = WindowJudge(settings, DecisionState.from_dict(saved.get("decision")), HealthState.from_dict(saved.get("health")))
         self._status_spans: deque[tuple[float, float, tuple[SensorStatus, ...]]] = deque(maxlen=10_000)
         self._gap_times: deque[float] = deque(maxlen=10_000)
         self._core: IndicatorStream | None = None
@@ -83,17 +144,16 @@ class Monitor:
 
     @property
     def mode(self) -> str:
-        return self._decider.state.mode.value
+        return self._judge.decider.state.mode.value
 
     def reconfigure(self, settings: MonitorSettings) -> None:
         """Apply a reloaded config; the alarm state carries over, the windows restart."""
         self.settings = settings
-        self._decider = Decider(settings.decision, settings.config_hash, self._decider.state)
-        self._health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, self._health.state)
+        self._judge.reconfigure(settings)
         self._core = None
 
     def state_dict(self) -> dict[str, Any]:
-        return {"decision": self._decider.state.as_dict(), "health": self._health.state.as_dict()}
+        return {"decision": self._judge.decider.state.as_dict(), "health": self._judge.health.state.as_dict()}
 
     def save_state(self) -> None:
         self.store.put_state(STATE_KEY, self.state_dict())
@@ -121,16 +181,13 @@ class Monitor:
 
     def _on_window(self, window: WindowIndicators) -> list[Event]:
         self.counters.windows += 1
-        health = assess_window(window, self.settings.health, self._status_over(window), self._gaps_before(window.end_s))
-        events = self._health.update(window, health)
-        judgement = None
-        if health.judgeable:
+        judged = self._judge.judge(window, self._status_over(window), self._gaps_before(window.end_s))
+        health, judgement, events = judged.health, judged.judgement, judged.events
+        if judgement is not None:
             self.counters.judged += 1
-            judgement, decided = self._decider.update(window, self.settings.load)
-            events += decided
         elif health.gate is not None:
             self.counters.gated += 1
-        if not health.sensors_ok:
+        else:
             self.counters.sensor_fault_windows += 1
         if events:
             self.store.append(events, state={STATE_KEY: self.state_dict()})  # durable before reported
@@ -138,7 +195,7 @@ class Monitor:
             for event in events:
                 for sink in self.sinks:
                     sink.publish(event)
-        self.latest = WindowReport(window, health, judgement, self.mode, tuple(events))
+        self.latest = WindowReport(window, health, judgement, self.mode, tuple(events), judged.load, judged.p_full)
         for observer in self.observers:
             observer(self.latest)
         return events

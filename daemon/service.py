@@ -8,6 +8,7 @@ and rejected, the old one keeps running) and drains on SIGTERM. Signal handlers 
 
 from __future__ import annotations
 
+import math
 import signal
 import threading
 import time
@@ -34,14 +35,17 @@ EXIT_OK, EXIT_INTERNAL_ERROR = 0, 1
 
 def monitor_settings(config: BogiemonConfig, load: str | None = None, fs_hz: float | None = None) -> MonitorSettings:
     """What the monitor needs from a config; `load` overrides decision.load (e.g. --load)."""
+    load = load or config.decision.load
+    config.check_models()
     return MonitorSettings(
         processing=config.processing_settings(fs_hz),
         geometry=config.bogie_geometry(),
         health=config.health_settings(),
         decision=config.decision_settings(),
-        load=load or config.decision.load,
+        load=load,
         config_hash=config.digest(),
         sensor_clear_after_windows=config.health.clear_after_windows,
+        load_model=config.load_model() if load == "auto" else None,
     )
 
 
@@ -54,8 +58,14 @@ def status_line(report: WindowReport | None, monitor: Monitor) -> str:
         parts.append(f"gated: {report.health.gate.value}")
     if not report.health.sensors_ok:
         parts.append("sensor fault: " + ", ".join(f"{ch} {'/'.join(p.value for p in ps)}" for ch, ps in report.health.problems.items()))
+    if report.load is not None:
+        parts.append(f"load {report.load}" + (f" (p_full {report.p_full:.2f})" if report.p_full is not None else ""))
     if report.judgement is not None:
         parts += [f"{name} {value:.3g}" for name, value in report.judgement.values.items()]
+        if math.isfinite(report.judgement.trend):
+            parts.append(f"trend {report.judgement.trend:.3g}")
+        if report.judgement.baseline == "population":
+            parts.append("not commissioned (population baseline)")
     parts.append(f"{monitor.counters.windows} windows, {monitor.counters.events} events")
     return ", ".join(parts)
 
@@ -86,6 +96,18 @@ class Service:
         self.flags = _Flags(threading.Event(), threading.Event())
         self._log = get_logger(component="service")
 
+    def _warn_if_not_commissioned(self, config: BogiemonConfig) -> None:
+        """The fused method without this wagon's calibration judges against the fleet's population
+        baseline, which misses most faults: say so at every start, where a keeper looks."""
+        missing = [ld for ld in ("full", "tare") if ld not in config.decision.fused] if config.decision.method == "fused" else []
+        if missing:
+            self._log.warning(
+                "not commissioned: no calibration of this wagon for the load state(s) "
+                f"{', '.join(missing)}; they are judged against the fleet's population baseline, which misses most faults. "
+                "Record the healthy wagon and run `bogiemon calibrate` (README: commissioning)",
+                loads=missing,
+            )
+
     def install_signal_handlers(self) -> None:
         def on_stop(signum: int, _frame: FrameType | None) -> None:
             self.flags.stop.set()
@@ -106,6 +128,7 @@ class Service:
             "starting", config=str(self.config_path or "default"), config_hash=self.config.digest(),
             state=str(store.path), mode=monitor.mode, load=self.load or self.config.decision.load,
         )  # fmt: skip
+        self._warn_if_not_commissioned(self.config)
         pipeline = self._start_pipeline(monitor)
         ready = False
         last_status = 0.0
@@ -155,6 +178,7 @@ class Service:
         self.notifier.reloading()
         try:
             new = load_config(self.config_path)
+            new.check_models()
         except ConfigError as exc:
             self._log.error("reload rejected, keeping the running config", reason=str(exc))
             self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in str(exc).splitlines()))
@@ -170,5 +194,6 @@ class Service:
             pipeline.source.close()
             pipeline = self._start_pipeline(monitor)
         self._log.info("reloaded", config_hash=new.digest())
+        self._warn_if_not_commissioned(new)
         self.notifier.ready(status="reloaded")
         return pipeline

@@ -8,6 +8,7 @@ out; a summary ends it. The service's JSON log goes to demo.log in the state dir
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 from importlib import resources
@@ -22,6 +23,11 @@ from bogiemon.daemon.monitor import WindowReport
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("demo", help="run the daemon on the bundled simulator: a healthy stretch, then a broken spring")
     p.add_argument("--config", help="demo config (default: the shipped config/demo.toml)")
+    p.add_argument(
+        "--calibration",
+        help="the demo wagon's commissioning, a `bogiemon calibrate` fragment (default: the shipped config/demo_calibration.toml; "
+        "'none' runs uncommissioned)",
+    )
     p.add_argument("--state-dir", help="keep the event store and the log here (default: a temporary folder)")
     p.set_defaults(run=run)
 
@@ -45,7 +51,12 @@ class LiveDisplay:
         done = min(1.0, end_s / self.duration_s)
         bar = "#" * int(20 * done) + "-" * (20 - int(20 * done))
         if report.judgement is not None:
-            values = "  ".join(f"{name} {value:+.4f}" for name, value in report.judgement.values.items())
+            j = report.judgement
+            values = "  ".join(f"{name} {value:+.4f}" for name, value in j.values.items())
+            if math.isfinite(j.alarm_ratio):
+                values += f"  ({100 * j.alarm_ratio:3.0f} % of alarm)"
+            if math.isfinite(j.trend):
+                values += f"  trend {j.trend:.2f}"
         elif report.health.gate is not None:
             values = f"not judged: {report.health.gate.value}"
         else:
@@ -54,6 +65,10 @@ class LiveDisplay:
         for event in report.events:
             fired = ", ".join(f"{k} {v:+.3f}" for k, v in event.indicators.items())
             line = f"{event.kind.value} ({event.severity.value}) at {end_s:.0f} s: {fired}"
+            diagnosis = event.details.get("diagnosis")
+            if diagnosis:
+                line += (f"; likely {diagnosis['corner']} corner ({100 * diagnosis['corner_confidence']:.0f} %), "
+                         f"{diagnosis['kind']} ({100 * diagnosis['kind_confidence']:.0f} %)")  # fmt: skip
             self.events.append(line)
             self.out.write(f"  >>> {line}\n")
             if event.kind is EventKind.CONFIRMED and self.confirmed_at_s is None:
@@ -65,13 +80,17 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.service import Service
     from bogiemon.daemon.sources import open_source
 
-    demo_path = Path(args.config) if args.config else Path(str(resources.files("bogiemon.config").joinpath("demo.toml")))
+    shipped = resources.files("bogiemon.config")
+    demo_path = Path(args.config) if args.config else Path(str(shipped.joinpath("demo.toml")))
+    calibration = None if args.calibration == "none" else Path(args.calibration or str(shipped.joinpath("demo_calibration.toml")))
     with tempfile.TemporaryDirectory(prefix="bogiemon-demo-") as scratch:
         state_dir = Path(args.state_dir) if args.state_dir else Path(scratch)
         state_dir.mkdir(parents=True, exist_ok=True)
         # The demo file, with the state directory of this run: the daemon reads it like any config.
         run_config = state_dir / "demo-run.toml"
-        run_config.write_text(f'include = ["{demo_path.resolve()}"]\n\n[state]\ndirectory = "{state_dir.resolve()}"\n')
+        # The demo wagon was commissioned like any other: its calibration is included after the demo file.
+        includes = ", ".join(f'"{p.resolve()}"' for p in (demo_path, calibration) if p is not None)
+        run_config.write_text(f"include = [{includes}]\n\n[state]\ndirectory = \"{state_dir.resolve()}\"\n")
         config = load_config(run_config)
         src = config.source
         if not isinstance(src, SimulatedSourceConfig):
@@ -83,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
         )
         p = config.processing
         print(f"windows of {p.window_s:g} s every {p.hop_s:g} s; alarm after {config.decision.confirm_k} of {config.decision.confirm_n} windows")
+        if calibration is not None:
+            print(f"the wagon is commissioned: {calibration.name} (`bogiemon calibrate` on two hours of it running healthy)")
         print("simulating the run (the first demo on a machine also compiles the simulator, ~15 s) ...", flush=True)
         display = LiveDisplay(src.duration_s, src.fault_at_s if src.faults else None)
         with (state_dir / "demo.log").open("w") as log:

@@ -7,9 +7,11 @@ import sys
 from collections.abc import Sequence
 
 from bogiemon.daemon.calibrate import CalibrationError
-from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, events, listen, play, replay, run, simulate, study
+from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, evaluate, events, listen, play, replay, run, simulate, study
 from bogiemon.daemon.config import ConfigError
 from bogiemon.daemon.delivery.connection import CredentialsError
+from bogiemon.daemon.evaluate import EvaluateError
+from bogiemon.daemon.models import ModelError
 from bogiemon.daemon.delivery.listener import ListenError
 from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.candb import DbcError
@@ -17,7 +19,7 @@ from bogiemon.drivers.player import PlayError
 from bogiemon.drivers.recording import RecordingError
 from bogiemon.simulator.errors import SimulationError
 
-COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, play, listen)
+COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, play, listen)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback.
 USER_ERRORS: tuple[type[Exception], ...] = (
     CalibrationError,
@@ -25,10 +27,12 @@ USER_ERRORS: tuple[type[Exception], ...] = (
     CredentialsError,
     DbcError,
     ListenError,
+    ModelError,
     PlayError,
     RecordingError,
     SimulationError,
     StoreError,
+    EvaluateError,
     events.TimeArgumentError,
     study.StudyError,
 )

@@ -1,4 +1,4 @@
-"""`bogiemon replay RECORDING... [--config F] [--load full|tare] [--json] [--realtime]`."""
+"""`bogiemon replay RECORDING... [--config F] [--load auto|full|tare] [--json] [--realtime]`."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p = sub.add_parser("replay", help="run recordings (CSV or CAN logs) through the daemon's pipeline and print its events")
     p.add_argument("files", nargs="+", metavar="RECORDING", help="CSV recordings or CAN logs (.log, .asc, .blf), in time order")
     p.add_argument("--config", help="config file (default: the shipped default config)")
-    p.add_argument("--load", choices=("full", "tare"), help="load state, overriding decision.load")
+    p.add_argument("--load", choices=("auto", "full", "tare"), help="load state, overriding decision.load (auto: estimated from the signals)")
     p.add_argument("--json", action="store_true", help="events as JSON lines")
     p.add_argument("--realtime", action="store_true", help="pace the recordings at real time instead of as fast as possible")
     p.add_argument("--state-dir", help="keep the event store here (default: a temporary one)")

@@ -1,4 +1,4 @@
-"""`bogiemon run [--config F] [--load full|tare]`: the service (systemd Type=notify, or by hand)."""
+"""`bogiemon run [--config F] [--load auto|full|tare]`: the service (systemd Type=notify, or by hand)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from bogiemon.daemon.logs import configure_logging
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("run", help="run the monitoring service")
     p.add_argument("--config", help="config file (default: the shipped default config)")
-    p.add_argument("--load", choices=("full", "tare"), help="load state, overriding decision.load")
+    p.add_argument("--load", choices=("auto", "full", "tare"), help="load state, overriding decision.load (auto: estimated from the signals)")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     p.set_defaults(run=run)
 

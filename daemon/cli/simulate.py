@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TextIO
 
+from bogiemon.daemon.cli.progress import ProgressBar
 from bogiemon.daemon.config import load_config
 from bogiemon.simulator.errors import SimulationError
 
@@ -54,26 +54,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.set_defaults(run=run)
 
 
-class _ProgressBar:
-    """A one-line bar on a terminal, redrawn in place."""
-
-    def __init__(self, stream: TextIO, label: str) -> None:
-        self._stream, self._label, self._shown = stream, label, -1
-
-    def __call__(self, fraction: float) -> None:
-        percent = int(fraction * 100)
-        if percent != self._shown:
-            self._shown = percent
-            filled = percent * 30 // 100
-            self._stream.write(f"\r{self._label} [{'#' * filled}{'.' * (30 - filled)}] {percent:3d}%")
-            self._stream.flush()
-
-    def close(self) -> None:
-        if self._shown >= 0:
-            self._stream.write("\n")
-            self._stream.flush()
-
-
 def run(args: argparse.Namespace) -> int:
     # The simulator (numba) is imported only by this command.
     from bogiemon.simulator.run import simulate, write_recording
@@ -100,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         sensor=SensorModel(noise_mps2=args.noise_mps2, bias_mps2=tuple(args.bias_mps2), quantum_mps2=args.quantum_mps2),
         max_step_s=args.max_step_s,
     )
-    bar = _ProgressBar(sys.stderr, f"simulating {scenario.duration_s:g} s") if sys.stderr.isatty() and not args.quiet else None
+    bar = ProgressBar(sys.stderr, f"simulating {scenario.duration_s:g} s") if sys.stderr.isatty() and not args.quiet else None
     try:
         result = simulate(scenario, bar)
     finally:

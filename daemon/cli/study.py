@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
-import time
 from pathlib import Path
-from typing import TextIO
 
+from bogiemon.daemon.cli.progress import ProgressBar, check_report_folder
 from bogiemon.daemon.config import load_config
 
 
@@ -50,45 +48,12 @@ def _window_lengths(text: str | None) -> tuple[float, ...]:
     return values
 
 
-class _ProgressBar:
-    """A bar redrawn in place on a terminal; elsewhere a line every 10 %."""
-
-    def __init__(self, stream: TextIO, label: str) -> None:
-        self._stream, self._label, self._shown = stream, label, -1
-        self._tty = stream.isatty()
-        self._started = time.monotonic()
-
-    def __call__(self, fraction: float) -> None:
-        percent = int(fraction * 100)
-        if percent == self._shown or (not self._tty and percent // 10 == self._shown // 10):
-            return
-        self._shown = percent
-        elapsed_s = time.monotonic() - self._started
-        eta = f", about {elapsed_s * (1 - fraction) / fraction / 60:.1f} min left" if fraction > 0.02 else ""
-        if self._tty:
-            filled = percent * 30 // 100
-            self._stream.write(f"\r{self._label} [{'#' * filled}{'.' * (30 - filled)}] {percent:3d}%{eta}   ")
-        else:
-            self._stream.write(f"{self._label}: {percent}%{eta}\n")
-        self._stream.flush()
-
-    def close(self) -> None:
-        if self._tty and self._shown >= 0:
-            self._stream.write("\n")
-            self._stream.flush()
-
-
 def run(args: argparse.Namespace) -> int:
     # The simulator (numba) and the study are imported only by this command.
     from bogiemon.simulator.study import StudyPlan, run_study, window_settings, write_report
 
     out = Path(args.output)
-    if out.exists() and not out.is_dir():
-        raise StudyError(f"{out}: exists and is not a folder: choose a folder for the report with -o")
-    if not out.resolve().parent.is_dir():
-        raise StudyError(f"{out}: its parent folder does not exist: create it or choose another -o")
-    if not args.no_figures and importlib.util.find_spec("matplotlib") is None:
-        raise StudyError("the figures need matplotlib: install bogiemon's 'report' extra (pip install 'bogiemon[report]') or pass --no-figures")
+    check_report_folder(out, not args.no_figures, StudyError)
     config = load_config(args.config)
     settings = config.processing_settings()
     lengths_s = _window_lengths(args.windows_s)
@@ -103,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         + (["--windows-s", args.windows_s] if args.windows_s and not args.quick else [])
         + (["--config", args.config] if args.config else [])
     )
-    bar = None if args.quiet else _ProgressBar(sys.stderr, f"study ({plan.name}, {len(plan.runs())} runs)")
+    bar = None if args.quiet else ProgressBar(sys.stderr, f"study ({plan.name}, {len(plan.runs())} runs)")
     try:
         result = run_study(plan, settings, config.bogie_geometry(), bar)
     finally:

@@ -11,6 +11,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from importlib import resources
 from pathlib import Path
 
 import pytest
@@ -18,8 +19,13 @@ import pytest
 BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
 
 
+# The simulated wagon's commissioning, as the demo ships it (`make demo-calibration`).
+CALIBRATION = Path(str(resources.files("bogiemon.config").joinpath("demo_calibration.toml")))
+
+
 def config_text(state_dir: Path, faults: list[str], duration_s: float, rate: float, extra: str = "") -> str:
-    return f"""
+    return f"""include = ["{CALIBRATION}"]
+
 [source]
 kind = "simulated"
 load = "full"
@@ -144,6 +150,7 @@ hop_s = 1.0
 max_lag_s = 2.0
 [decision]
 load = "full"
+method = "thresholds"
 confirm_k = 1
 confirm_n = 1
 clear_after_windows = 1

@@ -20,7 +20,13 @@ fs_hz = {FS_HZ}
 window_s = 6.0
 hop_s = 2.0
 max_lag_s = 1.0
+[health]
+# White-noise modes have none of a bogie frame's structure: no structure checks on them.
+structure_checks = false
 [decision]
+# These tests exercise the machinery with short windows: the per-indicator method, fixed load.
+method = "thresholds"
+load = "full"
 confirm_k = 2
 confirm_n = 3
 clear_after_windows = 2

@@ -15,7 +15,6 @@ and /tmp, which ProtectHome and PrivateTmp hide from the service), DeviceAllow f
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -66,6 +65,11 @@ reconnect_backoff_max_s = 1.0
 window_s = 10.0
 hop_s = 2.0
 max_lag_s = 2.0
+
+[decision]
+# Short windows for a quick test: the per-indicator method (the fused model needs 120 s windows).
+method = "thresholds"
+load = "full"
 
 [health]
 noise_ratio = 4.0

@@ -1,0 +1,309 @@
+"""The robustness evaluation with the daemon's own judgement: `bogiemon evaluate -o docs/robust`.
+
+The simulator's engine (simulator/evaluation.py) draws the fleet, simulates every run and scores
+the results; this module hands it the daemon's methods, each a config run through the daemon's
+WindowJudge (sensor health, gating, load state, decision, diagnosis) window by window, commissioned
+per wagon with `calibrate`'s own code where the method calibrates. It imports the simulator only
+when called: the daemon never needs it at run time.
+"""
+
+from __future__ import annotations
+
+import copy
+import pickle
+import time
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from bogiemon.daemon.calibrate import calibrate_windows, fragment
+from bogiemon.daemon.config import BogiemonConfig, validate_config
+from bogiemon.daemon.models import shipped_models
+from bogiemon.daemon.modelfit import TrainingRun, fit_models, write_models
+from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
+from bogiemon.daemon.service import monitor_settings
+from bogiemon.detection import WindowIndicators
+
+if TYPE_CHECKING:
+    from bogiemon.simulator.evaluation import EvaluationData, JudgedRun
+
+Progress = Callable[[float], None]
+
+# The paper's method: its clearest indicators (METHOD.md: at full load 2 and 4, in tare only 3),
+# raw, one fixed threshold per indicator for every wagon, from the training fleet's healthy windows.
+PAPER_INDICATORS = {"full": ["i2", "i4"], "tare": ["i3"]}
+
+
+def with_fragment(config: BogiemonConfig, text: str) -> BogiemonConfig:
+    """The config with a calibration fragment included (a named load state replaces its set)."""
+    data = config.model_dump(mode="json")
+    frag = tomllib.loads(text)["decision"]
+    for load, per in frag.get("thresholds", {}).items():
+        data["decision"]["thresholds"][load] = per
+    for load, baseline in frag.get("fused", {}).items():
+        data["decision"]["fused"][load] = baseline
+    return validate_config(data, "calibrated config")
+
+
+def with_overrides(config: BogiemonConfig, decision: Mapping[str, Any]) -> BogiemonConfig:
+    data = config.model_dump(mode="json")
+    data["decision"].update(copy.deepcopy(dict(decision)))
+    return validate_config(data, "method config")
+
+
+@dataclass(frozen=True)
+class _Commissioned:
+    settings: MonitorSettings
+    true_load: bool  # judge each run in its true load state (the paper's method assumes it known)
+
+    def judge(self, runs: Sequence[Sequence[WindowIndicators]], true_load: str) -> list[JudgedRun]:
+        from bogiemon.simulator.evaluation import JudgedRun, Outcome
+
+        settings = replace(self.settings, load=true_load, load_model=None) if self.true_load else self.settings
+        judge = WindowJudge(settings)  # one wagon running on: its decision state carries over
+        out = []
+        for windows in runs:
+            events, loads, ratios, p_full = [], [], [], []
+            for w in windows:
+                judged = judge.judge(w)
+                loads.append(judged.load)
+                ratios.append(None if judged.judgement is None else judged.judgement.alarm_ratio)
+                p_full.append(judged.p_full)
+                events += [Outcome(e.kind.value, w.end_s, e.details) for e in judged.events]
+            out.append(JudgedRun(tuple(events), tuple(loads), tuple(ratios), tuple(p_full)))
+        return out
+
+
+@dataclass(frozen=True)
+class DaemonMethod:
+    """A detection method as the daemon runs it: a config, calibrated per wagon or not."""
+
+    name: str
+    description: str
+    config: BogiemonConfig
+    calibrated: bool
+    true_load: bool = False
+
+    def commission(self, calibration: Mapping[str, Sequence[WindowIndicators]]) -> _Commissioned:
+        config = self.config
+        if self.calibrated:
+            for load, windows in sorted(calibration.items()):
+                config = with_fragment(config, fragment(calibrate_windows(windows, config, load)))
+        return _Commissioned(monitor_settings(config), self.true_load)
+
+
+def training_runs(data: EvaluationData) -> list[TrainingRun]:
+    return [
+        TrainingRun(f"training {r.run.wagon}", r.run.load, r.run.key, r.run.severity, r.run.corner.value if r.run.corner else None, r.windows)
+        for r in data.runs
+        if r.run.training
+    ]
+
+
+def paper_thresholds(data: EvaluationData, config: BogiemonConfig) -> dict[str, dict[str, dict[str, float]]]:
+    """The paper's fixed thresholds: calibrate's rule over every healthy training window, per load."""
+    out = {}
+    thresholds_config = with_overrides(config, {"method": "thresholds"})
+    for load, names in PAPER_INDICATORS.items():
+        windows = [w for r in data.select(role="train-healthy", load=load) for w in r.windows]
+        result = calibrate_windows(windows, thresholds_config, load, names)
+        out[load] = {i.name: {"center": i.threshold.center, "warning": i.threshold.warning, "alarm": i.threshold.alarm} for i in result.indicators}
+    return out
+
+
+def daemon_methods(data: EvaluationData, config: BogiemonConfig, paper: bool = True) -> list[DaemonMethod]:
+    """The methods compared, the daemon's default last; without `paper` (it needs the training
+    fleet's healthy runs) the paper's method is left out."""
+    thresholds = with_overrides(config, {"method": "thresholds"})
+    fused = with_overrides(config, {"method": "fused"})
+    methods = [] if not paper else [
+        DaemonMethod(
+            "paper", "the paper's raw indicators (I2 and I4 at full load, I3 in tare), one fixed threshold each for every wagon "
+            "(calibrate's rule over the training fleet's healthy windows), the true load state given",
+            with_overrides(config, {"method": "thresholds", "thresholds": paper_thresholds(data, config)}), calibrated=False, true_load=True,
+        )
+    ]  # fmt: skip
+    return methods + [
+        DaemonMethod(
+            "study thresholds", "the detection study's shipped thresholds on I4n (full) and I4n, I3n (tare), the daemon's default "
+            "before this evaluation; load estimated", thresholds, calibrated=False,
+        ),
+        DaemonMethod(
+            "thresholds, calibrated", "the same indicators, thresholds learned per wagon by `bogiemon calibrate` from its "
+            "commissioning runs; load estimated", thresholds, calibrated=True,
+        ),
+        DaemonMethod(
+            "fused, uncalibrated", "the fused score against the fleet's population baseline (a wagon without calibration); "
+            "load estimated", fused, calibrated=False,
+        ),
+        DaemonMethod(
+            "fused, calibrated", "the fused score against the wagon's own healthy center learned by `bogiemon calibrate` from "
+            "its commissioning runs; load estimated (the daemon's default)", fused, calibrated=True,
+        ),
+    ]  # fmt: skip
+
+
+def config_folder() -> Path:
+    """bogiemon's config folder, where the shipped models live."""
+    return Path(str(resources.files("bogiemon.config")))
+
+
+def fit_and_write_models(data: EvaluationData, config: BogiemonConfig, directory: str | Path | None = None) -> list[Path]:
+    """Fit the shipped models on the plan's training fleet and write them (default: config/)."""
+    plan = data.plan
+    description = (
+        f"training fleet: {plan.n_training_wagons} simulated wagons of the '{plan.name}' evaluation plan (fleet seed {plan.fleet_seed}), "
+        f"disjoint from its evaluation fleet;\n"
+        f"{plan.training_healthy_runs} healthy runs of {plan.training_healthy_s:g} s per wagon and load (the first "
+        f"{plan.calibration_runs} its commissioning), "
+        f"{plan.training_fault_runs} run(s) of {plan.training_fault_s:g} s per fault case, severity and corner; "
+        f"windows of {config.processing.window_s:g} s every {config.processing.hop_s:g} s."
+    )
+    fitted = fit_models(
+        training_runs(data), config.bogie_geometry(), config.health_settings(), config.processing_settings(),
+        config.decision.confirm_k, config.decision.confirm_n, description, calibration_runs=plan.calibration_runs,
+    )  # fmt: skip
+    written = write_models(fitted, directory or config_folder())
+    shipped_models.cache_clear()
+    return written
+
+
+class EvaluateError(ValueError):
+    """An evaluation that cannot run as asked (bad folder, unreadable data file); the message says why."""
+
+
+def load_or_simulate(plan: Any, config: BogiemonConfig, data_file: str | Path | None, progress: Progress | None) -> EvaluationData:
+    """The plan's simulated windows: from data_file when it holds this plan and settings, else simulated
+    (and written there when a file is named)."""
+    from bogiemon.simulator.evaluation import simulate_plan
+
+    settings, geometry = config.processing_settings(), config.bogie_geometry()
+    path = Path(data_file) if data_file else None
+    have = {}
+    if path is not None and path.exists():
+        try:
+            with path.open("rb") as f:
+                cached = pickle.load(f)  # noqa: S301 - the user's own cache, named on the command line
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
+            raise EvaluateError(f"{path}: cannot read the simulated data ({exc}): delete it to simulate again") from None
+        if getattr(cached, "plan", None) == plan and cached.settings == settings and cached.geometry == geometry:
+            return cached  # type: ignore[no-any-return]
+        # Another version of the plan at the same settings: its runs are reused, the rest simulated.
+        if getattr(cached, "settings", None) == settings and cached.geometry == geometry and cached.plan.fleet_seed == plan.fleet_seed:
+            have = {r.run: r for r in cached.runs}
+    data = simulate_plan(plan, settings, geometry, progress, have=have)
+    if path is not None:
+        try:
+            with path.open("wb") as f:
+                pickle.dump(data, f, protocol=pickle.HIGHEST_PROTOCOL)
+        except OSError as exc:
+            raise EvaluateError(f"{path}: cannot write the simulated data: {exc.strerror or exc}") from None
+    return data
+
+
+def run_evaluation(
+    config: BogiemonConfig,
+    out_dir: str | Path,
+    command: str,
+    quick: bool = False,
+    fit_models: bool = False,
+    data_file: str | Path | None = None,
+    figures: bool = True,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Simulate (or load) the plan, optionally fit the shipped models, judge every method, write the report."""
+    from bogiemon.simulator.evaluation import EvaluationPlan, judge_runs
+    from bogiemon.simulator.robust_report import write_report
+    from bogiemon.simulator.robust_score import score_method
+
+    started = time.perf_counter()
+    plan = EvaluationPlan.quick() if quick else EvaluationPlan.default()
+
+    def part(base: float, share: float) -> Progress | None:
+        return None if progress is None else (lambda f: progress(base + share * f))
+
+    data = load_or_simulate(plan, config, data_file, part(0.0, 0.8))
+    if fit_models:
+        fit_and_write_models(data, config)
+    methods = daemon_methods(data, config)
+    scores = []
+    for i, method in enumerate(methods):
+        judged = judge_runs(data, method, part(0.8 + 0.2 * i / len(methods), 0.2 / len(methods)))
+        scores.append(score_method(data, method.name, method.description, judged.runs, judged.sequences))
+    try:
+        return write_report(data, scores, out_dir, command, time.perf_counter() - started, report_sections(), figures)
+    except OSError as exc:
+        raise EvaluateError(f"{out_dir}: cannot write the report: {exc.strerror or exc}") from None
+
+
+def report_sections() -> dict[str, list[str]]:
+    """The report's prose about the daemon's methods and models (the numbers come from the scores)."""
+    return {
+        "method": [
+            "**The default, fused and calibrated** (daemon/decision.py). Each window's couplings of the bogie frame's "
+            "modes: the real part of the pitch-roll and bounce-roll coherency in the octave bands from 2 to 64 Hz (ten "
+            "numbers, detection/features.py), from the band cross-spectra the detection core keeps per window "
+            "(detection/spectra.py). Normalised by the modes' own power, they do not grow with speed or track roughness "
+            "as the paper's raw indicators do. Commissioning (`bogiemon calibrate`) learns the wagon's own healthy "
+            "center; the spread around it is shipped (config/fused_model.toml), fitted on a training fleet of other "
+            "wagons. Two paths judge the whitened shift z = L (x - center):",
+            "",
+            "- *windows*: the window score |z|^2 at its alarm level in 3 of the last 5 judged windows confirms: a gross "
+            "fault within minutes;",
+            "- *trend*: the exponentially weighted mean of z over the judged windows (time constant 30 min of running, "
+            "carried across stops and restarts), |mean|^2 at its alarm level confirms: a standing fault that any one "
+            "window cannot tell from the healthy wagon's own scatter, once the wagon has met enough tracks and speeds.",
+            "",
+            "Both levels are fixed before the evaluation by the rule in daemon/modelfit.py, on the training fleet only: "
+            "the larger of 1.1 x the largest healthy value seen and an exponential tail's once-in-1000-hours level. The "
+            "load state comes from the spectral shape of each window (a logistic regression on four band-power shares, "
+            "config/load_model.toml); the diagnosis compares the confirming shift with the training fleet's fault "
+            "signatures per corner and kind (config/fault_signatures.toml).",
+        ],
+        "models": [
+            "## The shipped models",
+            "",
+            "`bogiemon evaluate --fit-models` fits config/load_model.toml, config/fused_model.toml and "
+            "config/fault_signatures.toml on the plan's training fleet (wagons disjoint from the evaluation's) before it "
+            "evaluates; each file's header says what it was fitted on. They are the simulator's: a real fleet's first "
+            "wagons should refit the spread and the levels from their own healthy running (the same code, "
+            "daemon/modelfit.py, on recorded windows).",
+        ],
+        "discussion": [
+            "## Discussion",
+            "",
+            "- **A healthy wagon is not symmetric.** Its corners' own tolerances (springs +/-5 %, dampers +/-10 %) and "
+            "its sensors' gain errors couple the modes by themselves, and by how much depends on the track and the "
+            "speed: the dry-friction dampers stick or slide differently in each condition. The table above shows it: "
+            "between two healthy runs of one wagon the couplings move as much as within a run, and as much as a broken "
+            "spring moves them at full load. Within two minutes a fault must stand out of that scatter; the paper's "
+            "numerical experiments used one symmetric wagon, where it does. A 50 % or 200 % coil at full load changes "
+            "the corner's stiffness by 10 to 30 % and its damper's sliding force by 13 to 24 % (Table 1): little more "
+            "than the tolerances. These targets are out of reach within two minutes on this fleet: even the level that in hindsight "
+            "just passes every one of the 100 healthy hours (an oracle no deployment has) would not reach them, see "
+            "the alarm ratios above. The trend reaches more of them within the half hour; a longer commissioning "
+            "(two hours instead of half an hour took the trend's largest healthy values on the training fleet from "
+            "6.7 to 1.6 at full load and from 2.2 to 1.2 in tare) or a spread refitted on a real fleet lowers both levels further.",
+            "- **False alarms.** The levels were set on the training fleet for about one false alarm per 1000 hours "
+            "(daemon/modelfit.py) and are not tuned to the evaluation: the count above is what that rule gives on ten "
+            "other wagons. The trend's healthy level is set mostly by how well the commissioning caught the wagon's "
+            "own center; a wagon commissioned on few tracks and speeds drifts further from it later.",
+            "- **Front coils at full load.** Through the Lenoir link a softer front coil raises the damper's sliding "
+            "force (Table 1: front outer at 0 % has Kz -20 % but Fs +35 %), so the corner softens in its spring and "
+            "stiffens in its damper: the two effects partly cancel in the frame's motion. A softer rear coil lowers the "
+            "sliding force too (rear outer at 0 %: Kz -20 %, Fs -35 %) and both effects add. This is why the rear coils "
+            "are seen at full load and the front coils much less, in both paths.",
+            "- **Inner coils in tare** touch the frame only under load: their faults change little and are not "
+            "detected, as the paper states; they ran as a control of the false-alarm rate.",
+            "- **Friction at 75 %** of Table 3's nominal (16.74 kN) is 101 % of Table 1's healthy sliding force (16.51 "
+            "kN): not a fault of this wagon (docs/study/README.md).",
+            "- **Where the fault is.** A fault at one corner shifts the couplings in a direction set by the corner "
+            "(the sign of pitch-roll follows x y, of bounce-roll the side) and by how its damper sticks; the diagnosis "
+            "names the corner of most detected faults, also of the corner without a sensor. The kind (softer spring, "
+            "stiffer spring, friction) is often wrong: through the Lenoir link a spring fault is also a friction fault, "
+            "and the stiffer and softer cases of the front and rear coils shift the couplings alike.",
+        ],
+    }

@@ -1,0 +1,291 @@
+"""The models the daemon's judgement uses beyond thresholds, shipped as data in config/.
+
+    config/load_model.toml       the load state from the spectral shape (a logistic regression)
+    config/fused_model.toml      the fused score: the healthy couplings' spread, per load
+    config/fault_signatures.toml the coupling patterns of each corner's faults, per load
+
+They are fitted on a simulated training fleet by `bogiemon evaluate --fit-models` (daemon/modelfit.py;
+the wagons, runs and numbers are in each file's header and in docs/robust/README.md) and read
+here into plain dataclasses. A wagon's own healthy center comes from `bogiemon calibrate`.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
+from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, coupling_vector, load_vector
+
+LOAD_MODEL_FILE = "load_model.toml"
+FUSED_MODEL_FILE = "fused_model.toml"
+SIGNATURES_FILE = "fault_signatures.toml"
+KINDS = ("spring-softer", "spring-stiffer", "friction")
+UNKNOWN = "unknown"
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used; the message names the file and the field."""
+
+
+# --------------------------------------------------------------------------------------------
+# The load state
+
+
+@dataclass(frozen=True)
+class LoadModel:
+    """P(full) = 1 / (1 + exp(-(bias + sum w_i (x_i - mean_i) / scale_i))), x the named LOAD_FEATURES."""
+
+    features: tuple[str, ...]
+    mean: tuple[float, ...]
+    scale: tuple[float, ...]
+    weights: tuple[float, ...]
+    bias: float
+
+    def __post_init__(self) -> None:
+        unknown = set(self.features) - set(LOAD_NAMES)
+        if unknown or not (len(self.features) == len(self.mean) == len(self.scale) == len(self.weights)):
+            raise ModelError(f"load model: features {sorted(unknown)} unknown or lengths differ")
+
+    def probability_full(self, window: WindowIndicators, geometry: BogieGeometry) -> float:
+        """P(full) of one window; NaN when the window has no spectra or a mode no power."""
+        if window.spectra is None:
+            return math.nan
+        x = load_vector(window.spectra, geometry)[[LOAD_NAMES.index(f) for f in self.features]]
+        z = self.bias + float(np.dot(self.weights, (x - np.asarray(self.mean)) / np.asarray(self.scale)))
+        if not math.isfinite(z):
+            return math.nan
+        return 1.0 / (1.0 + math.exp(-max(min(z, 50.0), -50.0)))
+
+
+# --------------------------------------------------------------------------------------------
+# The fused score
+
+
+@dataclass(frozen=True)
+class Levels:
+    """Warning and alarm levels of the window score and of the trend, for one baseline."""
+
+    warning: float
+    alarm: float
+    trend_warning: float
+    trend_alarm: float
+
+    def scaled(self, factor: float) -> Levels:
+        return Levels(self.warning * factor, self.alarm * factor, self.trend_warning * factor, self.trend_alarm * factor)
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """A healthy reference of the coupling vector: center and the inverse Cholesky factor of its
+    covariance (whitening: z = L (x - center), score = |z|^2), with levels on the window score and
+    on the trend (|EWMA of z|^2 with time constant trend_tau_s of running)."""
+
+    name: str  # "calibrated" (this wagon's) or "population" (the shipped fleet's)
+    center: NDArray[np.float64]
+    whitening: NDArray[np.float64]  # L with L^T L = covariance^-1
+    levels: Levels
+    trend_tau_s: float
+
+    @property
+    def warning(self) -> float:
+        return self.levels.warning
+
+    @property
+    def alarm(self) -> float:
+        return self.levels.alarm
+
+    def whiten(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.whitening @ (x - self.center)
+
+    def score(self, x: NDArray[np.float64]) -> float:
+        z = self.whiten(x)
+        return float(z @ z)
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """Identifies the center and spread: a trend accumulated against another baseline restarts."""
+        return hashlib.sha256(np.round(np.concatenate([self.center, self.whitening.ravel()]), 9).tobytes()).hexdigest()[:16]
+
+
+def whitening_of(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """L with L^T L = covariance^-1 (the inverse of the lower Cholesky factor)."""
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(covariance, dtype=np.float64)))
+
+
+@dataclass(frozen=True)
+class FusedModel:
+    """The fused score's shipped part for one load: the spread of a calibrated wagon's healthy
+    couplings around its own center (covariance, levels) and the fleet's baseline for a wagon
+    without calibration (population center, covariance, levels)."""
+
+    load: str
+    features: tuple[str, ...]
+    window_s: float  # the processing windows it was fitted on: the spread depends on them
+    hop_s: float
+    covariance: NDArray[np.float64]
+    levels: Levels  # of a calibrated wagon
+    trend_tau_s: float
+    population_center: NDArray[np.float64]
+    population_covariance: NDArray[np.float64]
+    population_levels: Levels
+    calibration_median_score: float  # the median score of a training wagon's own calibration windows
+
+    def fits(self, settings: ProcessingSettings) -> bool:
+        """Whether windows of these processing settings are the ones the model was fitted on."""
+        return math.isclose(settings.window_s, self.window_s) and math.isclose(settings.hop_s, self.hop_s)
+
+    def population(self) -> Baseline:
+        return Baseline("population", self.population_center, whitening_of(self.population_covariance), self.population_levels, self.trend_tau_s)
+
+    def calibrated(self, center: Sequence[float], levels: Levels) -> Baseline:
+        return Baseline("calibrated", np.asarray(center, dtype=np.float64), whitening_of(self.covariance), levels, self.trend_tau_s)
+
+
+def coupling_features(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[np.float64] | None:
+    """The coupling vector of a window; None when it has no spectra or a mode had no power."""
+    if window.spectra is None:
+        return None
+    x = coupling_vector(window.spectra, geometry)
+    return x if bool(np.all(np.isfinite(x))) else None
+
+
+# --------------------------------------------------------------------------------------------
+# Fault signatures
+
+
+@dataclass(frozen=True)
+class Signature:
+    """The mean whitened coupling shift of one fault class at one corner, as a unit vector."""
+
+    label: str  # e.g. "leading-left/spring-softer/rear_outer"
+    corner: str
+    kind: str
+    direction: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SignatureSet:
+    load: str
+    signatures: tuple[Signature, ...]
+    sharpness: float  # kappa of the softmax over cosine similarities
+    min_confidence: float  # below this the corner (or kind) is "unknown"
+
+
+# --------------------------------------------------------------------------------------------
+# Reading the files
+
+
+def _read(name: str) -> dict[str, Any]:
+    try:
+        text = resources.files("bogiemon.config").joinpath(name).read_text(encoding="utf-8")
+    except (OSError, ValueError):
+        raise ModelError(f"{name}: no such model file in bogiemon's config folder; regenerate it with `bogiemon evaluate --fit-models`") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{name}: invalid TOML: {exc}") from None
+
+
+def _floats(data: Mapping[str, Any], key: str, where: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in data[key])
+    except (KeyError, TypeError, ValueError):
+        raise ModelError(f"{where}.{key}: expected a list of numbers") from None
+
+
+def _matrix(data: Mapping[str, Any], key: str, where: str, n: int) -> NDArray[np.float64]:
+    try:
+        m = np.array(data[key], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        raise ModelError(f"{where}.{key}: expected a {n} x {n} matrix") from None
+    if m.shape != (n, n) or not np.all(np.isfinite(m)):
+        raise ModelError(f"{where}.{key}: expected a finite {n} x {n} matrix, got shape {m.shape}")
+    return m
+
+
+def parse_load_model(data: Mapping[str, Any], where: str = LOAD_MODEL_FILE) -> LoadModel:
+    try:
+        return LoadModel(
+            features=tuple(str(f) for f in data["features"]),
+            mean=_floats(data, "mean", where),
+            scale=_floats(data, "scale", where),
+            weights=_floats(data, "weights", where),
+            bias=float(data["bias"]),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelError(f"{where}: {exc}") from None
+
+
+def parse_fused_model(data: Mapping[str, Any], load: str, where: str = FUSED_MODEL_FILE) -> FusedModel:
+    section = data.get(load)
+    if not isinstance(section, Mapping):
+        raise ModelError(f"{where}: no [{load}] table")
+    w = f"{where}: {load}"
+    features = tuple(str(f) for f in section.get("features", ()))
+    if features != COUPLING_NAMES:
+        raise ModelError(f"{w}.features: {list(features)} differ from the detection core's {list(COUPLING_NAMES)}")
+    n = len(features)
+    try:
+        return FusedModel(
+            load=load,
+            features=features,
+            window_s=float(section["window_s"]),
+            hop_s=float(section["hop_s"]),
+            covariance=_matrix(section, "covariance", w, n),
+            levels=Levels(float(section["warning"]), float(section["alarm"]), float(section["trend_warning"]), float(section["trend_alarm"])),
+            trend_tau_s=float(section["trend_tau_s"]),
+            population_center=np.array(_floats(section, "population_center", w)),
+            population_covariance=_matrix(section, "population_covariance", w, n),
+            population_levels=Levels(
+                float(section["population_warning"]), float(section["population_alarm"]),
+                float(section["population_trend_warning"]), float(section["population_trend_alarm"]),
+            ),  # fmt: skip
+            calibration_median_score=float(section["calibration_median_score"]),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelError(f"{w}: missing or bad field {exc}") from None
+
+
+def parse_signatures(data: Mapping[str, Any], load: str, where: str = SIGNATURES_FILE) -> SignatureSet:
+    section = data.get(load)
+    if not isinstance(section, Mapping):
+        raise ModelError(f"{where}: no [{load}] table")
+    w = f"{where}: {load}"
+    out = []
+    for label, entry in section.get("signatures", {}).items():
+        direction = np.array(_floats(entry, "direction", f"{w}.signatures.{label}"))
+        if direction.shape != (len(COUPLING_NAMES),) or entry.get("kind") not in KINDS:
+            raise ModelError(f"{w}.signatures.{label}: needs a direction of {len(COUPLING_NAMES)} numbers and a kind in {KINDS}")
+        out.append(Signature(str(label), str(entry["corner"]), str(entry["kind"]), direction / np.linalg.norm(direction)))
+    if not out:
+        raise ModelError(f"{w}: no signatures")
+    return SignatureSet(load, tuple(out), float(section["sharpness"]), float(section["min_confidence"]))
+
+
+@dataclass(frozen=True)
+class ShippedModels:
+    load: LoadModel
+    fused: Mapping[str, FusedModel]
+    signatures: Mapping[str, SignatureSet]
+
+
+@functools.cache
+def shipped_models() -> ShippedModels:
+    """The models in bogiemon's config folder (read once per process)."""
+    load = parse_load_model(_read(LOAD_MODEL_FILE))
+    fused_data, signature_data = _read(FUSED_MODEL_FILE), _read(SIGNATURES_FILE)
+    return ShippedModels(
+        load=load,
+        fused={ld: parse_fused_model(fused_data, ld) for ld in ("full", "tare")},
+        signatures={ld: parse_signatures(signature_data, ld) for ld in ("full", "tare")},
+    )

@@ -1,0 +1,723 @@
+"""The robustness evaluation (issue 8): a varied fleet of simulated wagons, commissioned and then run.
+
+    plan = EvaluationPlan.default()                    # or EvaluationPlan.quick()
+    data = simulate_plan(plan, settings, geometry)     # every run's windows, by the detection core
+    report = evaluate(data, methods)                   # each detection method judged run by run
+    write_report(report, "docs/robust", command=...)
+
+The daemon's judgement is not imported here (the simulator never imports the daemon): each
+detection method is a `Method` handed in by the caller (bogiemon.daemon.evaluate builds the
+daemon's own), which commissions a wagon from its calibration windows and then judges runs.
+
+THE FLEET. Each wagon is drawn from its own seed: masses and inertias of carbody and bogie frames
++/-10 %, the coil springs +/-5 % (the wagon's batch) and each corner's nest another +/-5 %, the
+friction dampers' Fs +/-10 % per wagon (every Fs of the paper's tables, so a fault keeps its
+meaning relative to the wagon's healthy damper) and +/-10 % per corner, the dampers' stick
+stiffness and the side bearers' stiffness +/-10 % and +/-20 %; and its three sensors: gain
++/-3 %, bias +/-0.3 m/s^2, white noise 0.005 to 0.03 m/s^2 per sample, 16-bit quantisation over
++/-16 g. All uniform. A corner's own tolerance is put on as the simulator's `custom` fault of that
+corner (its tangent stiffness and Fs), so a healthy wagon is never exactly symmetric.
+
+THE RUNS. Every run drives on one track quality drawn from ERRI low and high level and FRA
+classes 4, 5 and 6, at a speed that drifts within 50..110 km/h (a random walk through a point every
+30 s, linear between them), in either direction of travel. The simulator's sensors sit on the
+wagon's leading bogie; a run in the other direction is emulated by mirroring the three sensors and
+the corners (x -> -x, y -> -y: the config still names the corners for the reference direction), so
+the monitored bogie leads the wagon in both directions (on a real wagon it would trail, coupled to
+the other bogie through the carbody). Per wagon and load:
+- commissioning: CALIBRATION runs of the healthy wagon, what the keeper records to calibrate;
+- healthy test runs: the same wagon later, other tracks and speeds, for the false alarms;
+- fault runs: a healthy lead-in that fills the windows, then the fault appears under the running
+  wagon (the simulator's fault onset) and the run goes on; a run counts as detected when the
+  fault is CONFIRMED within DETECTION_HORIZON_S of running with it.
+Every fault case of the paper's Tables 1 to 3 at every severity, on every corner of the monitored
+bogie (the one without a sensor too), and the inner coils in tare (which do not touch the frame:
+invisible by construction, run to show it). Fault runs are spread over the fleet's wagons.
+A TRAINING fleet of other wagons (other seeds) gives the data the shipped models are fitted on
+(load classifier, fault signatures, the population baseline of an uncalibrated wagon); nothing
+of the evaluation fleet is used to fit them.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import time
+import zlib
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, WindowIndicators
+from bogiemon.simulator.params import default_parameter_set
+from bogiemon.simulator.scenario import Scenario, SpeedProfile
+from bogiemon.simulator.sensors import SensorModel
+from bogiemon.simulator.study import table4_cases
+from bogiemon.simulator.suspension import CORNER_ORDER, Fault
+
+Progress = Callable[[float], None]
+
+TRACKS: tuple[str, ...] = ("erri-low", "erri-high", "fra-4", "fra-5", "fra-6")
+SPEED_MIN_KMH, SPEED_MAX_KMH = 50.0, 110.0
+SPEED_POINT_EVERY_S = 30.0
+SPEED_STEP_SD_KMH = 8.0
+DETECTION_HORIZON_S = 120.0  # "2 minutes of running" with the fault
+HEALTHY = "healthy"
+MIRROR: dict[Corner, Corner] = {
+    Corner.LEADING_LEFT: Corner.TRAILING_RIGHT,
+    Corner.TRAILING_RIGHT: Corner.LEADING_LEFT,
+    Corner.LEADING_RIGHT: Corner.TRAILING_LEFT,
+    Corner.TRAILING_LEFT: Corner.LEADING_RIGHT,
+}
+# Every cell of the paper's tables, plus the tare inner coils (not in Table 4: invisible in tare).
+TARE_INNER: dict[str, tuple[float, ...]] = {"type_a.tare.front_inner": (0.0, 0.5, 1.5, 2.0), "type_a.tare.rear_inner": (0.0, 0.5, 1.5, 2.0)}
+
+# Spread of a wagon (half-widths of uniform distributions, relative).
+MASS_SPREAD = 0.10
+COIL_BATCH_SPREAD = 0.05
+COIL_CORNER_SPREAD = 0.05
+FRICTION_WAGON_SPREAD = 0.10
+FRICTION_CORNER_SPREAD = 0.10
+STICK_SPREAD = 0.10
+SIDE_BEARER_SPREAD = 0.20
+SENSOR_GAIN_SPREAD = 0.03
+SENSOR_BIAS_MPS2 = 0.3
+SENSOR_NOISE_RANGE_MPS2 = (0.005, 0.03)
+SENSOR_QUANTUM_MPS2 = 2 * 16 * 9.80665 / 65536  # 16 bits over +/-16 g
+
+
+# What can be wrong with the sensors (applied to the simulated output; see damage_sensors).
+SENSOR_DAMAGE: dict[str, str] = {
+    "dead a1": "a1 reads gravity and nothing else (a broken cable at a powered sensor)",
+    "stuck a2": "a2's converter freezes 60 s into the run",
+    "noisy a3": "a3 picks up white noise of 8 m/s^2 (a loose mounting)",
+    "clipping a3": "impacts twice a second drive a3 beyond the +/-16 g range",
+    "inverted a1": "a1 mounted upside down",
+    "inverted a2": "a2 mounted upside down",
+    "inverted a3": "a3 mounted upside down",
+    "swapped a1-a2": "the cables of a1 and a2 exchanged",
+    "swapped a1-a3": "the cables of a1 and a3 exchanged",
+    "swapped a2-a3": "the cables of a2 and a3 exchanged",
+}
+# The problem daemon/health.py should name, and on which channels.
+EXPECTED_PROBLEM: dict[str, tuple[str, tuple[str, ...]]] = {
+    "dead a1": ("flat", ("a1",)),
+    "stuck a2": ("stuck", ("a2",)),
+    "noisy a3": ("noisy", ("a3",)),
+    "clipping a3": ("clipping", ("a3",)),
+    "inverted a1": ("inverted", ("a1",)),
+    "inverted a2": ("inverted", ("a2",)),
+    "inverted a3": ("inverted", ("a3",)),
+    "swapped a1-a2": ("swapped", ("a1", "a2")),
+    "swapped a1-a3": ("swapped", ("a1", "a3")),
+    "swapped a2-a3": ("swapped", ("a2", "a3")),
+}
+
+
+def damage_sensors(accel_mps2: np.ndarray, damage: str, fs_hz: float, seed: int) -> np.ndarray:
+    """The (n, 3) recording with one of SENSOR_DAMAGE applied (a copy)."""
+    a = np.array(accel_mps2, dtype=np.float64)
+    rng = np.random.default_rng([seed, 2])
+    kind, what = damage.split(" ")
+    if kind == "dead":
+        a[:, 0] = 9.81
+    elif kind == "stuck":
+        at = int(60 * fs_hz)
+        a[at:, 1] = a[at, 1]
+    elif kind == "noisy":
+        a[:, 2] += rng.normal(0.0, 8.0, a.shape[0])
+    elif kind == "clipping":
+        a[:: int(0.5 * fs_hz), 2] += 400.0
+        a[:, 2] = np.clip(a[:, 2], -156.9, 156.9)
+    elif kind == "inverted":
+        c = int(what[1]) - 1
+        a[:, c] = -a[:, c]
+    elif kind == "swapped":
+        i, j = (int(x[1]) - 1 for x in what.split("-"))
+        a[:, [i, j]] = a[:, [j, i]]
+    else:  # pragma: no cover - SENSOR_DAMAGE lists every kind
+        raise ValueError(f"unknown sensor damage '{damage}'")
+    return a
+
+
+def fault_cells() -> dict[str, tuple[float, ...]]:
+    """Every case key with its severities: Table 4's rows and the tare inner coils."""
+    return {**table4_cases(), **TARE_INNER}
+
+
+def case_load(key: str) -> str:
+    return key.split(".")[1]
+
+
+def case_kind(key: str, severity: float) -> str:
+    """The diagnosis class of a case: 'spring-softer', 'spring-stiffer' or 'friction'."""
+    if key.startswith("type_b"):
+        return "friction"
+    return "spring-softer" if severity < 1.0 else "spring-stiffer"
+
+
+# --------------------------------------------------------------------------------------------
+# The fleet
+
+
+@dataclass(frozen=True)
+class Wagon:
+    """One simulated wagon: its parameter set, its corners' tolerances and its sensors."""
+
+    name: str
+    seed: int
+    parameters: dict[str, Any] = field(repr=False)
+    corner_kz_scale: tuple[float, ...]  # 8 corners: leading bogie then trailing, CORNER_ORDER
+    corner_fs_scale: tuple[float, ...]
+    sensor: SensorModel
+    spread: dict[str, float]  # the drawn wagon-level factors, for the report
+
+    def tolerance_fault(self, physical: Corner, bogie: str, config_corner: Corner, load: str) -> Fault:
+        """The healthy corner with its tolerances, as the simulator's custom fault at `physical`.
+
+        The tolerances belong to the corner of the frame (named in the config's reference
+        direction), wherever the direction of travel puts it.
+        """
+        k = (0 if bogie == "leading" else 4) + CORNER_ORDER.index(config_corner)
+        cases = self.parameters["fault_cases"]["healthy"][load]
+        return Fault(
+            kind="custom",
+            corner=physical,
+            bogie=bogie,
+            kz_n_per_m=float(cases["Kz"]) * self.corner_kz_scale[k],
+            fs_n=float(cases["Fs"]) * self.corner_fs_scale[k],
+        )
+
+
+def _scale_fs(cases: dict[str, Any], factor: float) -> None:
+    """Every Fs of the paper's tables times factor (the Lenoir link scales them all alike)."""
+    for load in ("full", "tare"):
+        cases["healthy"][load]["Fs"] = float(cases["healthy"][load]["Fs"]) * factor
+        for position in cases["type_a"][load].values():
+            for entry in position.values():
+                entry[1] = float(entry[1]) * factor
+        for key, value in cases["type_b"][load].items():
+            if key != "nominal_Fs":
+                cases["type_b"][load][key] = float(value) * factor
+
+
+def make_wagon(name: str, seed: int) -> Wagon:
+    """Draw one wagon of the fleet (module docstring) from its seed."""
+    rng = np.random.default_rng(seed)
+
+    def factor(half_width: float) -> float:
+        return float(1.0 + rng.uniform(-half_width, half_width))
+
+    params = copy.deepcopy(default_parameter_set())
+    vehicle, cases = params["vehicle"], params["fault_cases"]
+    spread: dict[str, float] = {}
+    for load in ("full", "tare"):
+        spread[f"carbody_mass_{load}"] = f = factor(MASS_SPREAD)
+        cases["wagon"][f"carbody_mass_{load}_kg"] = float(cases["wagon"][f"carbody_mass_{load}_kg"]) * f
+        for axis in ("pitch", "roll"):
+            spread[f"carbody_{axis}_inertia_{load}"] = f = factor(MASS_SPREAD)
+            vehicle["carbody"][f"{axis}_inertia_{load}_kg_m2"] = float(vehicle["carbody"][f"{axis}_inertia_{load}_kg_m2"]) * f
+    for name_, spread_width, table, key in (
+        ("frame_mass", MASS_SPREAD, "bogie_frame", "mass_kg"),
+        ("frame_pitch_inertia", MASS_SPREAD, "bogie_frame", "pitch_inertia_kg_m2"),
+        ("frame_roll_inertia", MASS_SPREAD, "bogie_frame", "roll_inertia_kg_m2"),
+        ("coils", COIL_BATCH_SPREAD, "primary", "outer_coil_stiffness_n_per_m"),
+        ("stick_stiffness", STICK_SPREAD, "primary", "stick_stiffness_n_per_m"),
+        ("side_bearers", SIDE_BEARER_SPREAD, "side_bearers", "stiffness_n_per_m"),
+    ):
+        spread[name_] = f = factor(spread_width)
+        vehicle[table][key] = float(vehicle[table][key]) * f
+        if name_ == "coils":  # one batch: outer and inner coils alike
+            vehicle["primary"]["inner_coil_stiffness_n_per_m"] = float(vehicle["primary"]["inner_coil_stiffness_n_per_m"]) * f
+    spread["friction"] = f = factor(FRICTION_WAGON_SPREAD)
+    _scale_fs(cases, f)
+    kz = tuple(factor(COIL_CORNER_SPREAD) for _ in range(8))
+    fs = tuple(factor(FRICTION_CORNER_SPREAD) for _ in range(8))
+    sensor = SensorModel(
+        noise_mps2=float(rng.uniform(*SENSOR_NOISE_RANGE_MPS2)),
+        bias_mps2=tuple(float(b) for b in rng.uniform(-SENSOR_BIAS_MPS2, SENSOR_BIAS_MPS2, 3)),  # type: ignore[arg-type]
+        quantum_mps2=SENSOR_QUANTUM_MPS2,
+        gain=tuple(factor(SENSOR_GAIN_SPREAD) for _ in range(3)),  # type: ignore[arg-type]
+    )
+    return Wagon(name, seed, params, kz, fs, sensor, spread)
+
+
+# --------------------------------------------------------------------------------------------
+# The plan
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run: who, what, where. `corner` is the fault's corner in the config's naming."""
+
+    role: str  # "calibration", "healthy", "fault", "trend", "sensor" (evaluation fleet) or "train-healthy", "train-fault"
+    wagon: int  # index into the plan's fleet (evaluation or training, by role)
+    load: str
+    key: str  # HEALTHY or a case key, e.g. "type_a.full.rear_outer"
+    severity: float
+    corner: Corner | None
+    number: int  # the run's number among the runs of its role, wagon and load (or its cell); in a trend sequence, its place
+    duration_s: float
+    onset_s: float = 0.0  # the fault appears this far into the run (0: healthy run)
+    damage: str | None = None  # role "sensor": what is wrong with a sensor (SENSOR_DAMAGE)
+
+    @property
+    def name(self) -> str:
+        where = self.corner.value if self.corner else "-"
+        damage = f"|{self.damage}" if self.damage else ""
+        return f"{self.role}|{self.wagon}|{self.load}|{self.key}|{self.severity:g}|{where}|{self.number}{damage}"
+
+    @property
+    def seed(self) -> int:
+        return zlib.crc32(self.name.encode())
+
+    @property
+    def training(self) -> bool:
+        return self.role.startswith("train")
+
+    @property
+    def kind(self) -> str | None:
+        return None if self.key == HEALTHY else case_kind(self.key, self.severity)
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """A run's drawn conditions."""
+
+    track: str
+    speed: SpeedProfile
+    reversed: bool
+
+
+def draw_conditions(run: RunSpec) -> Conditions:
+    """The run's track, speed profile and direction, from its own seed (reproducible alone)."""
+    rng = np.random.default_rng([run.seed, 1])
+    track = TRACKS[int(rng.integers(len(TRACKS)))]
+    n_points = int(math.ceil(run.duration_s / SPEED_POINT_EVERY_S)) + 1
+    speeds = [float(rng.uniform(SPEED_MIN_KMH, SPEED_MAX_KMH))]
+    for _ in range(n_points - 1):
+        v = speeds[-1] + rng.normal(0.0, SPEED_STEP_SD_KMH)
+        # Reflected at the limits (clipping would pile the speeds up at 50 and 110 km/h).
+        v = 2 * SPEED_MIN_KMH - v if v < SPEED_MIN_KMH else v
+        v = 2 * SPEED_MAX_KMH - v if v > SPEED_MAX_KMH else v
+        speeds.append(float(np.clip(v, SPEED_MIN_KMH, SPEED_MAX_KMH)))
+    points = tuple((k * SPEED_POINT_EVERY_S, round(v, 3)) for k, v in enumerate(speeds))
+    return Conditions(track, SpeedProfile(points), bool(rng.integers(2)))
+
+
+@dataclass(frozen=True)
+class EvaluationPlan:
+    """What the evaluation runs. Durations in seconds."""
+
+    name: str
+    n_wagons: int = 10
+    n_training_wagons: int = 8
+    calibration_runs: int = 12  # per wagon and load: two hours of commissioning
+    calibration_s: float = 600.0
+    healthy_runs: int = 30  # per wagon and load
+    healthy_s: float = 600.0
+    fault_runs: int = 6  # per case, severity and corner
+    lead_in_s: float = 150.0
+    fault_s: float = 240.0
+    trend_runs: int = 4  # per trend sequence: one per case, severity and corner
+    trend_run_s: float = 450.0
+    training_healthy_runs: int = 30  # per training wagon and load: its commissioning, then the runs that set the levels
+    training_healthy_s: float = 600.0
+    training_fault_runs: int = 2  # per case, severity and corner
+    training_fault_s: float = 300.0
+    sensor_runs: int = 4  # per damage and load
+    sensor_s: float = 600.0
+    fleet_seed: int = 2026
+    loads: tuple[str, ...] = ("full", "tare")
+    corners: tuple[Corner, ...] = tuple(Corner)
+
+    @classmethod
+    def default(cls) -> EvaluationPlan:
+        return cls(name="default")
+
+    @classmethod
+    def quick(cls) -> EvaluationPlan:
+        """A small plan for trying the command: few wagons, short runs, one run per cell, two corners."""
+        return cls(
+            name="quick", n_wagons=2, n_training_wagons=2, calibration_runs=2, calibration_s=400.0,
+            healthy_runs=2, healthy_s=400.0, fault_runs=1, trend_runs=2, trend_run_s=240.0, training_healthy_runs=6,
+            training_healthy_s=400.0, training_fault_runs=1, sensor_runs=1, sensor_s=400.0,
+            corners=(Corner.LEADING_LEFT, Corner.TRAILING_RIGHT),
+        )  # fmt: skip
+
+    def fleet(self) -> tuple[Wagon, ...]:
+        return tuple(make_wagon(f"wagon {i + 1}", zlib.crc32(f"{self.fleet_seed}|evaluation|{i}".encode())) for i in range(self.n_wagons))
+
+    def training_fleet(self) -> tuple[Wagon, ...]:
+        return tuple(
+            make_wagon(f"training wagon {i + 1}", zlib.crc32(f"{self.fleet_seed}|training|{i}".encode())) for i in range(self.n_training_wagons)
+        )
+
+    def runs(self) -> tuple[RunSpec, ...]:
+        out: list[RunSpec] = []
+        for w in range(self.n_wagons):
+            for load in self.loads:
+                out += [RunSpec("calibration", w, load, HEALTHY, 1.0, None, r, self.calibration_s) for r in range(self.calibration_runs)]
+                out += [RunSpec("healthy", w, load, HEALTHY, 1.0, None, r, self.healthy_s) for r in range(self.healthy_runs)]
+        out += self._fault_runs("fault", self.n_wagons, self.fault_runs, self.lead_in_s, self.lead_in_s + self.fault_s)
+        out += self._trend_runs()
+        turn = 0
+        for damage in SENSOR_DAMAGE:
+            for load in self.loads:
+                for r in range(self.sensor_runs):
+                    out.append(RunSpec("sensor", turn % self.n_wagons, load, HEALTHY, 1.0, None, r, self.sensor_s, damage=damage))
+                    turn += 1
+        for w in range(self.n_training_wagons):
+            for load in self.loads:
+                out += [RunSpec("train-healthy", w, load, HEALTHY, 1.0, None, r, self.training_healthy_s) for r in range(self.training_healthy_runs)]
+        out += self._fault_runs("train-fault", self.n_training_wagons, self.training_fault_runs, 0.0, self.training_fault_s)
+        return tuple(out)
+
+    def _trend_runs(self) -> list[RunSpec]:
+        """One sequence per case, severity and corner: a healthy lead-in, the fault appears, and the
+        same wagon runs on with it over trend_runs runs of other tracks and speeds."""
+        out = []
+        for i, run in enumerate(self._fault_runs("trend", self.n_wagons, 1, self.lead_in_s, self.trend_run_s)):
+            # Every sequence on another wagon than the single fault run of its cell and turn.
+            wagon = (i + self.n_wagons // 2) % self.n_wagons
+            for k in range(self.trend_runs):
+                out.append(dataclasses.replace(run, wagon=wagon, number=k, onset_s=self.lead_in_s if k == 0 else 0.0))
+        return out
+
+    def _fault_runs(self, role: str, n_wagons: int, per_cell: int, onset_s: float, duration_s: float) -> list[RunSpec]:
+        out = []
+        turn = 0  # cells go round the fleet so that every wagon carries every kind of fault
+        for key, severities in fault_cells().items():
+            load = case_load(key)
+            if load not in self.loads:
+                continue
+            for severity in severities:
+                for corner in self.corners:
+                    for r in range(per_cell):
+                        out.append(RunSpec(role, turn % n_wagons, load, key, severity, corner, r, duration_s, onset_s))
+                        turn += 1
+        return out
+
+
+def scenario_for(run: RunSpec, wagon: Wagon, fs_hz: float, geometry: BogieGeometry) -> Scenario:
+    """The simulator's scenario of one run of one wagon."""
+    cond = draw_conditions(run)
+
+    def physical(corner: Corner) -> Corner:
+        return MIRROR[corner] if cond.reversed else corner
+
+    faults, standing = [], []
+    for bogie in ("leading", "trailing"):
+        for corner in CORNER_ORDER:
+            if bogie == "leading" and corner == run.corner:
+                parts = run.key.split(".")
+                position = parts[2] if len(parts) == 3 else None
+                faults.append(Fault(kind=parts[0], corner=physical(corner), position=position, severity=run.severity))
+            else:
+                standing.append(wagon.tolerance_fault(physical(corner), bogie, corner, run.load))
+    sensors = BogieGeometry(geometry.wheelbase_m, geometry.sensor_spacing_m, tuple(physical(c) for c in geometry.corners))  # type: ignore[arg-type]
+    return Scenario(
+        load=run.load,
+        speed=cond.speed,
+        track=cond.track,
+        duration_s=run.duration_s,
+        seed=run.seed,
+        faults=tuple(faults),
+        standing_faults=tuple(standing),
+        fault_onset_s=run.onset_s if run.key != HEALTHY else 0.0,
+        fs_hz=fs_hz,
+        geometry=sensors,
+        sensor=wagon.sensor,
+        parameters=wagon.parameters,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Simulating and analysing
+
+
+@dataclass(frozen=True)
+class RunWindows:
+    """One run's windows (detection core at the report's settings), with what the run was."""
+
+    run: RunSpec
+    conditions: Conditions
+    windows: tuple[WindowIndicators, ...]
+    speed_kmh: tuple[float, ...]  # mean speed over each window
+
+
+@dataclass(frozen=True)
+class EvaluationData:
+    plan: EvaluationPlan
+    settings: ProcessingSettings
+    geometry: BogieGeometry
+    fleet: tuple[Wagon, ...]
+    training_fleet: tuple[Wagon, ...]
+    runs: tuple[RunWindows, ...]
+    simulated_s: float  # running time of every run of the plan
+    elapsed_s: float  # to simulate and analyse the runs that were not reused
+    reused_runs: int = 0  # runs taken from an earlier simulation (simulate_plan's `have`)
+
+    def select(self, **where: Any) -> list[RunWindows]:
+        """Runs whose RunSpec matches every given attribute (a value, or a set of values)."""
+        out = []
+        for r in self.runs:
+            if all(getattr(r.run, k) in (v if isinstance(v, set | frozenset) else {v}) for k, v in where.items()):
+                out.append(r)
+        return out
+
+
+def _window_speeds(speed: SpeedProfile, windows: Sequence[WindowIndicators], step_s: float = 1.0) -> tuple[float, ...]:
+    times, speeds = speed.arrays_mps()
+    out = []
+    for w in windows:
+        grid = np.arange(w.start_s, w.end_s + step_s / 2, step_s)
+        out.append(float(np.mean(np.interp(grid, times, speeds))) * 3.6)
+    return tuple(out)
+
+
+# Simulated seconds per wall second of the batch kernel and the core on the development machine;
+# only weighs the progress fraction.
+_SIM_RATE, _ANALYSIS_RATE = 2500.0, 3500.0
+
+
+def simulate_plan(
+    plan: EvaluationPlan,
+    settings: ProcessingSettings,
+    geometry: BogieGeometry,
+    progress: Progress | None = None,
+    batch_size: int = 16,
+    roles: Iterable[str] | None = None,
+    clip_level_mps2: float = 155.0,
+    have: Mapping[RunSpec, RunWindows] | None = None,
+) -> EvaluationData:
+    """Simulate every run of the plan (or of the given roles) and compute its windows.
+
+    have: runs already simulated at these settings (e.g. by an earlier, smaller version of the
+    plan): reused as they are, since a run is a function of its spec alone.
+    """
+    from bogiemon.simulator.run import simulate_batch  # the numba kernel: only when running
+
+    fleet, training = plan.fleet(), plan.training_fleet()
+    wanted = set(roles) if roles is not None else None
+    runs = [r for r in plan.runs() if wanted is None or r.role in wanted]
+    have = have or {}
+    results: dict[int, RunWindows] = {i: have[r] for i, r in enumerate(runs) if r in have}
+    todo = [i for i in range(len(runs)) if i not in results]
+    total_s = sum(runs[i].duration_s for i in todo) or 1.0
+    done_s = 0.0
+    out: list[RunWindows] = []
+    started = time.perf_counter()
+    # Runs of similar length share a batch (the kernel runs until the longest one ends).
+    order = sorted(todo, key=lambda i: (runs[i].duration_s, i))
+    for first in range(0, len(order), batch_size):
+        batch = [runs[i] for i in order[first : first + batch_size]]
+        scenarios = [scenario_for(r, (training if r.training else fleet)[r.wagon], settings.fs_hz, geometry) for r in batch]
+        weight = sum(r.duration_s for r in batch) / total_s
+        sim_share = _ANALYSIS_RATE / (_SIM_RATE + _ANALYSIS_RATE)
+
+        def report(fraction: float, base: float = done_s / total_s, weight: float = weight) -> None:
+            if progress is not None:
+                progress(min(1.0, base + weight * sim_share * fraction))
+
+        simulated = simulate_batch(scenarios, report)
+        for i, run, scenario, result in zip(order[first : first + batch_size], batch, scenarios, simulated, strict=True):
+            accel = result.accel_mps2 if run.damage is None else damage_sensors(result.accel_mps2, run.damage, settings.fs_hz, run.seed)
+            windows = tuple(IndicatorStream(settings, geometry, clip_level_mps2=clip_level_mps2).process(accel))
+            cond = draw_conditions(run)
+            results[i] = RunWindows(run, cond, windows, _window_speeds(scenario.speed, windows))
+        done_s += weight * total_s
+        if progress is not None:
+            progress(min(1.0, done_s / total_s))
+    out = [results[i] for i in range(len(runs))]
+    return EvaluationData(
+        plan=plan,
+        settings=settings,
+        geometry=geometry,
+        fleet=fleet,
+        training_fleet=training,
+        runs=tuple(out),
+        simulated_s=sum(r.duration_s for r in runs),
+        elapsed_s=time.perf_counter() - started,
+        reused_runs=len(runs) - len(todo),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Judging: the detection methods are handed in (the daemon's live in bogiemon.daemon.evaluate)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One event of a judged run: its kind ("CONFIRMED", "SENSOR_FAULT", ...), the end of the
+    window that caused it (s from the run's start) and its details."""
+
+    kind: str
+    time_s: float
+    details: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class JudgedRun:
+    events: tuple[Outcome, ...]
+    loads: tuple[str | None, ...]  # per window: the load state it was judged in (None: not judged)
+    # Per window: the judged value as a fraction of its alarm level (>= 1: alarm); None: not judged.
+    ratios: tuple[float | None, ...] = ()
+    p_full: tuple[float | None, ...] = ()  # per window: the estimated probability of full load (None: not estimated)
+
+
+class Commissioned(Protocol):
+    """A method set up for one wagon (after its commissioning, if it has one)."""
+
+    def judge(self, runs: Sequence[Sequence[WindowIndicators]], true_load: str) -> list[JudgedRun]:
+        """Judge consecutive runs of the wagon, the decision state carried from one to the next
+        (the windows restart at each run, as at a stop); one JudgedRun per run, times from its start."""
+        ...
+
+
+class Method(Protocol):
+    name: str
+    description: str
+
+    def commission(self, calibration: Mapping[str, Sequence[WindowIndicators]]) -> Commissioned:
+        """Set up for one wagon from the windows of its calibration runs, per load state."""
+        ...
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What one method made of one test run."""
+
+    run: RunSpec
+    track: str
+    reversed: bool
+    confirmed_s: float | None  # the first CONFIRMED after the onset (fault runs) or anywhere (others), s from the run's start
+    confirmed_before_onset: bool  # a fault run's lead-in confirmed (a false alarm)
+    diagnosis: Mapping[str, Any] | None
+    trigger: str | None  # of that CONFIRMED: "windows" or "trend"
+    sensor_problems: Mapping[str, tuple[str, ...]]  # every problem any SENSOR_FAULT named, per channel
+    suspension_events: int  # SUSPECTED and CONFIRMED events
+    confirmed_count: int
+    suspected_count: int
+    loads: tuple[str | None, ...]
+    ratios: tuple[float | None, ...]  # per window, as JudgedRun
+    p_full: tuple[float | None, ...]  # per window, as JudgedRun
+    window_ends_s: tuple[float, ...]  # per window, s from the run's start
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """What one method made of one trend sequence: a fault that appears and stays while the wagon
+    runs on. Times are of running with the fault, across the sequence's runs."""
+
+    first: RunSpec
+    runs: int
+    fault_running_s: float  # how long the sequence ran with the fault
+    confirmed_after_s: float | None  # running time from the onset to the first CONFIRMED after it
+    confirmed_before_onset: bool
+    trigger: str | None
+    diagnosis: Mapping[str, Any] | None
+
+
+def sequences(data: EvaluationData, wagon: int) -> list[list[RunWindows]]:
+    """The wagon's test runs as the evaluation judges them: its healthy runs of each load in order
+    as one stretch of running, each trend sequence in order, each fault and sensor run alone."""
+    groups: dict[tuple[Any, ...], list[RunWindows]] = {}
+    for r in data.runs:
+        spec = r.run
+        if spec.wagon != wagon or spec.role not in ("healthy", "fault", "sensor", "trend"):
+            continue
+        if spec.role == "healthy":
+            key: tuple[Any, ...] = ("healthy", spec.load)
+        elif spec.role == "trend":
+            key = ("trend", spec.load, spec.key, spec.severity, spec.corner)
+        else:
+            key = ("alone", spec.name)
+        groups.setdefault(key, []).append(r)
+    return [sorted(g, key=lambda r: r.run.number) for g in groups.values()]
+
+
+@dataclass(frozen=True)
+class Judged:
+    runs: list[RunResult]  # the healthy, fault and sensor runs
+    sequences: list[SequenceResult]  # the trend sequences
+
+
+def judge_runs(data: EvaluationData, method: Method, progress: Progress | None = None) -> Judged:
+    """Commission `method` on each wagon's calibration runs, then judge every test run of it."""
+    runs: list[RunResult] = []
+    seqs: list[SequenceResult] = []
+    total = sum(r.run.role in ("healthy", "fault", "sensor", "trend") for r in data.runs) or 1
+    done = 0
+    for w in range(len(data.fleet)):
+        calibration: dict[str, list[WindowIndicators]] = {}
+        for r in data.select(role="calibration", wagon=w):
+            calibration.setdefault(r.run.load, []).extend(r.windows)
+        commissioned = method.commission(calibration)
+        for group in sequences(data, w):
+            judged = commissioned.judge([r.windows for r in group], group[0].run.load)
+            if group[0].run.role == "trend":
+                seqs.append(_sequence_result(group, judged))
+            else:
+                runs += [_result(r, j) for r, j in zip(group, judged, strict=True)]
+            done += len(group)
+            if progress is not None:
+                progress(done / total)
+    return Judged(runs, seqs)
+
+
+def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -> SequenceResult:
+    onset = group[0].run.onset_s
+    offset = 0.0  # running time at the start of each run, from the sequence's start
+    first_after: tuple[float, Outcome] | None = None
+    before = False
+    for r, j in zip(group, judged, strict=True):
+        for e in j.events:
+            if e.kind != "CONFIRMED":
+                continue
+            t = offset + e.time_s
+            if t <= onset:
+                before = True
+            elif first_after is None:
+                first_after = (t - onset, e)
+        offset += r.run.duration_s
+    return SequenceResult(
+        first=group[0].run,
+        runs=len(group),
+        fault_running_s=offset - onset,
+        confirmed_after_s=first_after[0] if first_after else None,
+        confirmed_before_onset=before,
+        trigger=first_after[1].details.get("trigger") if first_after else None,
+        diagnosis=first_after[1].details.get("diagnosis") if first_after else None,
+    )
+
+
+def _result(r: RunWindows, judged: JudgedRun) -> RunResult:
+    onset = r.run.onset_s if r.run.key != HEALTHY else 0.0
+    confirmed = [e for e in judged.events if e.kind == "CONFIRMED"]
+    after = [e for e in confirmed if e.time_s > onset]
+    problems: dict[str, set[str]] = {}
+    for e in judged.events:
+        if e.kind == "SENSOR_FAULT":
+            for channel, found in e.details.get("problems", {}).items():
+                problems.setdefault(channel, set()).update(found)
+    return RunResult(
+        run=r.run,
+        track=r.conditions.track,
+        reversed=r.conditions.reversed,
+        confirmed_s=after[0].time_s if after else None,
+        confirmed_before_onset=any(e.time_s <= onset for e in confirmed) if r.run.key != HEALTHY else False,
+        diagnosis=after[0].details.get("diagnosis") if after else None,
+        trigger=after[0].details.get("trigger") if after else None,
+        sensor_problems={c: tuple(sorted(p)) for c, p in problems.items()},
+        suspension_events=sum(e.kind in ("SUSPECTED", "CONFIRMED") for e in judged.events),
+        confirmed_count=len(confirmed),
+        suspected_count=sum(e.kind == "SUSPECTED" for e in judged.events),
+        loads=judged.loads,
+        ratios=judged.ratios,
+        p_full=judged.p_full,
+        window_ends_s=tuple(w.end_s for w in r.windows),
+    )
