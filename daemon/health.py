@@ -213,9 +213,12 @@ class HealthState:
 class HealthTracker:
     """Turns per-window health verdicts into SENSOR_FAULT and SENSOR_CLEARED events.
 
-    A fault is reported when problems appear or change; it clears after clear_after_windows
-    consecutive windows without problems in which the wagon moved (at standstill a flat or
-    stuck channel cannot be told from a quiet one).
+    A fault is reported when a problem appears that is not reported yet (a channel, or a new
+    problem on one); while it lasts the reported set only grows, so a problem that comes and
+    goes from window to window (a dead channel seen as flat, then flat and stuck) is one event,
+    not one per change. It clears after clear_after_windows consecutive windows without problems
+    in which the wagon moved (at standstill a flat or stuck channel cannot be told from a quiet
+    one).
     """
 
     def __init__(self, config_hash: str, clear_after_windows: int = 3, state: HealthState | None = None) -> None:
@@ -234,9 +237,10 @@ class HealthTracker:
         details = {"window_start_s": window.start_s, "window_end_s": window.end_s, "rms_mps2": list(window.rms_mps2)}
         if current:
             s.clean_windows = 0
-            if current != s.reported:
-                s.reported = current
-                return [self._event(window, EventKind.SENSOR_FAULT, {**details, "problems": current})]
+            grown = {ch: sorted(set(s.reported.get(ch, [])) | set(ps)) for ch, ps in {**s.reported, **current}.items()}
+            if grown != s.reported:
+                s.reported = grown
+                return [self._event(window, EventKind.SENSOR_FAULT, {**details, "problems": current, "reported": grown})]
             return []
         if s.reported and health.gate is not Gate.STANDSTILL:
             s.clean_windows += 1

@@ -64,10 +64,20 @@ def test_tracker_reports_a_fault_once_and_clears_after_healthy_moving_windows() 
     assert kinds == [[EventKind.SENSOR_FAULT], [], [], [], [], [EventKind.SENSOR_CLEARED], [], []]
 
 
-def test_tracker_reports_again_when_the_problems_change() -> None:
+def test_tracker_reports_again_when_a_new_problem_appears() -> None:
     tracker = HealthTracker("cfg")
     first = tracker.update(window(rms=(0.001, 1, 1)), assess_window(window(rms=(0.001, 1, 1)), SETTINGS))
     w = window(rms=(0.001, 1, 1), repeat=(0, 0.9, 0))
     second = tracker.update(w, assess_window(w, SETTINGS))
     assert first[0].details["problems"] == {"a1": ["flat"]}
     assert second[0].details["problems"] == {"a1": ["flat"], "a2": ["stuck"]}
+    assert second[0].details["reported"] == {"a1": ["flat"], "a2": ["stuck"]}
+
+
+def test_a_problem_that_comes_and_goes_while_the_fault_lasts_is_reported_once() -> None:
+    tracker = HealthTracker("cfg")
+    flat, flat_and_stuck = window(rms=(0.001, 1, 1)), window(rms=(0.001, 1, 1), repeat=(0.9, 0, 0))
+    events = []
+    for w in (flat, flat_and_stuck, flat, flat_and_stuck, flat):
+        events += tracker.update(w, assess_window(w, SETTINGS))
+    assert [e.details["problems"] for e in events] == [{"a1": ["flat"]}, {"a1": ["flat", "stuck"]}]
