@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
 from bogiemon.drivers.can_decode import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CanFrameDecoder
-from bogiemon.drivers.can_source import CanSource, VirtualBusPort, set_receive_buffer, socket_drops
+from bogiemon.drivers.can_source import BusPort, CanSource, VirtualBusPort, set_receive_buffer, socket_drops
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.player import encode_instants, open_player_bus, play
 from bogiemon.drivers.segments import SampleQueue
@@ -179,8 +179,8 @@ def assert_survives_damage(layout: CanLayout, stream: tuple[list[can.Message], l
     messages, splits = stream
     blocks, counters = decode(layout, messages, splits)
     check_blocks(blocks)  # consecutive instants, uniform times, no gap bridged, values intact
-    # Every frame is accounted for exactly once.
-    total = counters.frames + counters.bad_frames + counters.extra["error_frames"]
+    # Every frame is accounted for exactly once (the DBC's own other messages are counted apart).
+    total = counters.frames + counters.bad_frames + counters.extra["error_frames"] + counters.extra["other_dbc_frames"]
     assert total == len(messages)
     assert counters.gaps == max(0, sum(b.gap_before for b in blocks) - 1)
 
@@ -320,3 +320,103 @@ def test_kernel_drops_are_read_from_the_socket(tmp_path) -> None:
     finally:
         receiver.close()
         sender.close()
+
+
+# ---- coalescing: the reader sleeps while a block fills instead of waking for every frame ------
+
+
+class ScheduledBus:
+    """A bus on a fake clock: each frame is received at its time stamp; every wait is counted."""
+
+    def __init__(self, frames: list[can.Message], t0_s: float) -> None:
+        self.frames = frames
+        self.arrival_s = [m.timestamp - t0_s for m in frames]
+        self.now_s = 0.0
+        self.next = 0
+        self.wake_ups = 0
+
+    def clock(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.wake_ups += 1
+        self.now_s += seconds
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if self.next < len(self.frames) and self.arrival_s[self.next] <= self.now_s:
+            self.next += 1
+            return self.frames[self.next - 1]
+        if not timeout:
+            return None
+        self.wake_ups += 1  # the caller blocked until a frame came or the timeout ran out
+        if self.next < len(self.frames) and self.arrival_s[self.next] <= self.now_s + timeout:
+            self.now_s = self.arrival_s[self.next]
+            self.next += 1
+            return self.frames[self.next - 1]
+        self.now_s += timeout
+        return None
+
+    def shutdown(self) -> None:
+        pass
+
+
+class ScheduledPort(BusPort):
+    description = "a scheduled test bus"
+
+    def __init__(self, bus: ScheduledBus) -> None:
+        self.bus = bus
+
+    def open(self) -> can.BusABC:
+        return self.bus  # type: ignore[return-value]  # duck-typed: recv and shutdown are all the source uses
+
+
+def read_scheduled(frames: list[can.Message], coalesce_s: float, n: int) -> tuple[list, ScheduledBus, list[float]]:
+    """Read n samples through a source on a scheduled bus; (blocks, the bus, the clock as each block left)."""
+    bus = ScheduledBus(frames, t0_s=1000.0)
+    source = CanSource(ScheduledPort(bus), HUB, FS_HZ, coalesce_s=coalesce_s, clock=bus.clock, sleep=bus.sleep)
+    blocks, returned_at_s = [], []
+    while sum(b.n_samples for b in blocks) < n and bus.now_s < 60.0:
+        block = source.read(0.5)
+        if block is not None:
+            blocks.append(block)
+            returned_at_s.append(bus.now_s)
+    return blocks, bus, returned_at_s
+
+
+def test_a_coalescing_reader_delivers_exactly_what_a_reader_woken_per_frame_delivers() -> None:
+    frames = layout_frames(HUB, np.arange(1000))  # 2 s at 500 Hz, one frame every 2 ms
+    plain, _, _ = read_scheduled(frames, 0.0, 1000)
+    fast, _, _ = read_scheduled(frames, 0.05, 1000)
+    assert [b.start_s for b in fast] == [b.start_s for b in plain]
+    assert [b.gap_before for b in fast] == [b.gap_before for b in plain]
+    np.testing.assert_array_equal(np.concatenate([b.accel_mps2 for b in fast]), np.concatenate([b.accel_mps2 for b in plain]))
+    np.testing.assert_array_equal(check_blocks(fast)[0], np.arange(1000))
+
+
+def test_a_filling_block_wakes_the_reader_once_per_coalescing_interval_not_per_frame() -> None:
+    frames = layout_frames(HUB, np.arange(1000))
+    _, per_frame, _ = read_scheduled(frames, 0.0, 1000)
+    _, coalescing, _ = read_scheduled(frames, 0.05, 1000)
+    assert per_frame.wake_ups >= 999
+    assert coalescing.wake_ups <= 2.0 / 0.05 + 4  # 2 s of frames, plus the first frame of each read
+
+
+def test_a_full_block_leaves_the_reader_at_most_one_coalescing_interval_after_its_last_frame() -> None:
+    blocks, _, returned_at_s = read_scheduled(layout_frames(HUB, np.arange(1000)), 0.05, 1000)
+    last_frame_s = (np.cumsum([b.n_samples for b in blocks]) - 1) / FS_HZ
+    assert all(0 <= r - f <= 0.05 + 1e-9 for r, f in zip(returned_at_s, last_frame_s, strict=True))
+
+
+def test_a_coalescing_read_still_returns_what_arrived_when_its_timeout_ends() -> None:
+    bus = ScheduledBus(layout_frames(HUB, np.arange(100)), t0_s=1000.0)  # 0.2 s of frames, then silence
+    source = CanSource(ScheduledPort(bus), HUB, FS_HZ, coalesce_s=0.05, clock=bus.clock, sleep=bus.sleep)
+    block = source.read(0.5)
+    assert block is not None and block.n_samples == 100
+    assert bus.now_s <= 0.5 + 1e-9
+
+
+def test_the_default_coalescing_interval_is_the_time_of_25_frames_at_most_50_ms() -> None:
+    hub = CanSource(ScheduledPort(ScheduledBus([], 0.0)), HUB, FS_HZ)
+    per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, FS_HZ)
+    assert hub.coalesce_s == pytest.approx(0.05)  # 25 frames at 500 frames/s
+    assert per_node.coalesce_s == pytest.approx(25 / (FS_HZ * PER_NODE.frames_per_instant))
