@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test install bench bench-core bench-drivers bench-simulator study clean
+.PHONY: demo test install bench bench-core bench-drivers bench-simulator bench-daemon bench-study bench-profile soak study evaluate demo-calibration clean
 
 # The venv is (re)built when missing or when pyproject.toml changes.
 $(STAMP): pyproject.toml
@@ -24,6 +24,18 @@ test: $(STAMP) system-deps
 	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
 	exit $$status
 
+# Benchmarks print figures (median, min and max of several runs; ratios against a baseline
+# measured in the same run); timing is never asserted in a test. `make bench` runs every part and
+# prints one table, writing bench/results/latest.json (about 40 minutes: the daemon runs at real
+# time, the study once); the parts run alone below. The bench extra brings py-spy for the profile.
+BENCH_STAMP := $(VENV)/.bench-stamp
+$(BENCH_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench]'
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	$(PY) bench/suite.py
+
 bench-core: $(STAMP)
 	$(PY) bench/bench_core.py
 
@@ -33,7 +45,21 @@ bench-drivers: $(STAMP)
 bench-simulator: $(STAMP)
 	$(PY) bench/bench_simulator.py
 
-bench: bench-core bench-drivers
+bench-daemon: $(STAMP)
+	$(PY) bench/bench_daemon.py
+
+bench-study: $(STAMP)
+	$(PY) bench/bench_study.py
+
+# The daemon's hot path on the CAN feed at 500 Hz under py-spy, before and after the CAN reader
+# coalesces its wake-ups (about 20 minutes).
+bench-profile: $(BENCH_STAMP)
+	$(PY) bench/profile_daemon.py
+
+# The soak test (not part of `make test`): 24 simulated hours through the daemon with faults,
+# gaps, sensor faults, reloads and restarts; checks memory, events and counters (a few minutes).
+soak: $(STAMP)
+	$(PY) bench/soak.py
 
 # System packages the tests use: mosquitto (the MQTT tests' broker) and openssl (their test
 # certificates), installed with apt-get only when missing and only as root; without them those
@@ -60,6 +86,25 @@ bench-mqtt: $(STAMP) system-deps
 # several minutes on two cores. `.venv/bin/bogiemon study --quick -o DIR` runs a small subset.
 study: $(STAMP)
 	$(VENV)/bin/bogiemon study -o docs/study
+
+# The robustness evaluation (docs/robust): a varied simulated fleet, the shipped models fitted on
+# its training wagons, every detection method judged on the others (about 40 minutes on two
+# cores). DATA keeps the simulated windows for another run: make evaluate DATA=build/robust.pkl
+evaluate: $(STAMP)
+	$(VENV)/bin/bogiemon evaluate --fit-models -o docs/robust $(if $(DATA),--data $(DATA))
+
+# The demo wagon's commissioning (config/demo_calibration.toml), as a keeper does it: two hours
+# of the healthy wagon at the demo's load on varied tracks and speeds, then `bogiemon calibrate`.
+DEMO_RUNS := build/demo-commissioning
+demo-calibration: $(STAMP)
+	rm -rf $(DEMO_RUNS) && mkdir -p $(DEMO_RUNS)
+	for i in 0 1 2 3 4 5 6 7 8 9 10 11; do \
+		case $$((i % 3)) in 0) track=erri-low;; 1) track=erri-high;; *) track=fra-5;; esac; \
+		if [ $$((i % 2)) = 0 ]; then speed=0:60,600:100; else speed=0:100,600:60; fi; \
+		$(VENV)/bin/bogiemon simulate --load full --track $$track --speed-profile $$speed --duration-s 600 \
+			--seed $$((100 + i)) -o $(DEMO_RUNS)/healthy-$$i.csv || exit 1; \
+	done
+	$(VENV)/bin/bogiemon calibrate $(DEMO_RUNS)/healthy-*.csv --load full -o config/demo_calibration.toml
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis build *.egg-info

@@ -1,10 +1,11 @@
-"""Benchmark of the drivers: the batch CAN decoder against cantools, and CPU per second of 500 Hz data.
+"""Benchmark of the drivers: the batch CAN decoder against cantools, and CPU per hour of 500 Hz data.
 
-Prints frames/s of the compiled numpy decoder and of per-frame cantools decoding on the same
-frames (median of several runs, min and max, and their ratio from the same run), then the CPU
-seconds each source spends per second of 500 Hz data: CAN over python-can's virtual bus with a
+Figures (median of several runs, min and max): frames/s of the compiled numpy decoder and of
+per-frame cantools decoding on the same frames, with their ratio from the same run; then the CPU
+seconds each source spends per hour of 500 Hz data: CAN over python-can's virtual bus with a
 player thread (reader and player measured separately with time.thread_time() inside each
-thread), serial through a real pseudo-terminal, and replay of a CSV and a candump log.
+thread; the reader also as it was before it coalesced its wake-ups, coalesce_s = 0, as the
+baseline), serial through a real pseudo-terminal, and replay of a CSV and a candump log.
 Run with `make bench-drivers` or `.venv/bin/python bench/bench_drivers.py [--runs R] [--seconds S]`.
 """
 
@@ -12,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
 import tempfile
 import threading
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from timing import time_runs  # noqa: E402
+from timing import Figure, table, time_interleaved  # noqa: E402
 
 from bogiemon.drivers.base import EndOfStream, HealthCounters, Source  # noqa: E402
 from bogiemon.drivers.can_decode import CanFrameDecoder  # noqa: E402
@@ -40,6 +40,7 @@ from bogiemon.drivers.serial_protocol import encode_packets  # noqa: E402
 from bogiemon.drivers.serial_source import SerialSource  # noqa: E402
 
 FS_HZ = 500.0
+COMMAND = "make bench-drivers"
 
 
 def accel(n: int, seed: int = 0) -> np.ndarray:
@@ -55,7 +56,8 @@ def hub_messages(n: int) -> list[can.Message]:
     ]
 
 
-def bench_decoder(runs: int, n: int) -> None:
+def decoder_figures(runs: int, n: int) -> list[Figure]:
+    """Frames/s of the batch codec and decoder, each against per-frame cantools in the same run."""
     layout = load_layout(None, "hub")
     messages = hub_messages(n)
     payloads = np.frombuffer(b"".join(m.data for m in messages), np.uint8).reshape(n, 8)
@@ -72,15 +74,14 @@ def bench_decoder(runs: int, n: int) -> None:
         for m in messages:
             db.decode_message(m.arbitration_id, m.data, decode_choices=False)
 
-    print(f"CAN decoding, {n} hub frames, {runs} runs (frames/s: median, min..max)")
-    baseline = time_runs(per_frame_cantools, max(3, runs // 2))
-    for label, fn in (("batch codec on payload arrays", batch_payloads), ("batch decoder from Messages", batch_messages)):
-        t = time_runs(fn, runs)
-        print(
-            f"  {label:<38} {n / t.median_s:12.0f}  ({n / t.max_s:.0f}..{n / t.min_s:.0f})"
-            f"  {baseline.median_s / t.median_s:6.1f}x cantools"
-        )
-    print(f"  {'per-frame cantools decode_message':<38} {n / baseline.median_s:12.0f}  ({n / baseline.max_s:.0f}..{n / baseline.min_s:.0f})")
+    codec_s, decoder_s, cantools_s = time_interleaved([batch_payloads, batch_messages, per_frame_cantools], runs)
+    baseline = Figure.of("cantools_frames_per_s", "per-frame cantools decode_message", "frames/s",
+                         [n / s for s in cantools_s], COMMAND)  # fmt: skip
+    codec = Figure.of("codec_frames_per_s", f"CAN batch codec on payload arrays ({n} hub frames)", "frames/s",
+                      [n / s for s in codec_s], COMMAND)  # fmt: skip
+    decoder = Figure.of("decoder_frames_per_s", "CAN batch decoder from python-can Messages", "frames/s",
+                        [n / s for s in decoder_s], COMMAND)  # fmt: skip
+    return [codec.compare(baseline), decoder.compare(baseline), baseline]
 
 
 def drain_live(source: Source, n: int, timeout_s: float) -> tuple[int, float]:
@@ -93,12 +94,13 @@ def drain_live(source: Source, n: int, timeout_s: float) -> tuple[int, float]:
     return got, time.thread_time() - cpu0
 
 
-def cpu_can(seconds: float, layout_name: str) -> tuple[float, float]:
+def cpu_can(seconds: float, layout_name: str, coalesce_s: float | None = None) -> tuple[float, float]:
+    """(reader, player) CPU seconds per second of data, CAN over the virtual bus at real time."""
     layout = load_layout(None, layout_name)
     channel = f"bench-{layout_name}-{time.monotonic_ns()}"
     data = accel(int(seconds * FS_HZ))
     player_cpu: list[float] = []
-    with CanSource(VirtualBusPort(channel), layout, FS_HZ) as source:
+    with CanSource(VirtualBusPort(channel), layout, FS_HZ, coalesce_s=coalesce_s) as source:
         bus = open_player_bus("virtual", channel)
 
         def player() -> None:
@@ -153,32 +155,48 @@ def cpu_replay(path: Path, data_s: float) -> float:
     return (time.thread_time() - cpu0) / data_s
 
 
-def spread(values: list[float]) -> str:
-    return f"{statistics.median(values) * 1e3:7.2f} ms/s  ({min(values) * 1e3:.2f}..{max(values) * 1e3:.2f}, {len(values)} runs)"
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=5, help="timed runs per figure (default 5)")
-    parser.add_argument("--seconds", type=float, default=4.0, help="seconds of live data per run (default 4)")
-    parser.add_argument("--frames", type=int, default=20000, help="frames for the decoder figures (default 20000)")
-    args = parser.parse_args()
-    bench_decoder(args.runs, args.frames)
-
-    live_runs = max(3, args.runs // 2)
-    print(f"\nCPU seconds per second of 500 Hz data (median, min..max), live sources paced at real time, {args.seconds:g} s each")
+def source_figures(runs: int, seconds: float) -> list[Figure]:
+    """CPU seconds per hour of 500 Hz data of each source, live ones paced at real time."""
+    hour = 3600.0
+    out = []
     for layout_name in ("hub", "per-node"):
-        readers, players = zip(*(cpu_can(args.seconds, layout_name) for _ in range(live_runs)), strict=True)
-        print(f"  CAN {layout_name:<8} reader (virtual bus)        {spread(list(readers))}")
-        print(f"  CAN {layout_name:<8} player thread               {spread(list(players))}")
-    print(f"  serial reader (pty, 13-byte packets)      {spread([cpu_serial(args.seconds) for _ in range(live_runs)])}")
+        # In turn, so that the reader and its baseline see the same machine.
+        pairs = [(cpu_can(seconds, layout_name, coalesce_s=0.0), cpu_can(seconds, layout_name)) for _ in range(runs)]
+        per_frame = [woken[0] for woken, _ in pairs]
+        readers, players = [now[0] for _, now in pairs], [now[1] for _, now in pairs]
+        woken = Figure.of(f"can_{layout_name}_reader_per_frame_cpu_s_per_h",
+                          f"CAN {layout_name} reader woken per frame (coalesce_s = 0, as before)",
+                          "CPU s/h", [c * hour for c in per_frame], COMMAND, higher_is_better=False)  # fmt: skip
+        reader = Figure.of(f"can_{layout_name}_reader_cpu_s_per_h", f"CAN {layout_name} reader, virtual bus, 500 Hz",
+                           "CPU s/h", [c * hour for c in readers], COMMAND, higher_is_better=False)  # fmt: skip
+        player = Figure.of(f"can_{layout_name}_player_cpu_s_per_h", f"CAN {layout_name} player thread (not the daemon's)",
+                           "CPU s/h", [c * hour for c in players], COMMAND, higher_is_better=False)  # fmt: skip
+        out += [reader.compare(woken), woken, player]
+    out.append(Figure.of("serial_cpu_s_per_h", "serial source through a pty, 500 Hz, 13-byte packets", "CPU s/h",
+                         [cpu_serial(seconds) * hour for _ in range(runs)], COMMAND, higher_is_better=False))  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         data_s = 60.0
         data = accel(int(data_s * FS_HZ))
         write_csv_recording(Path(tmp) / "run.csv", np.arange(data.shape[0]) / FS_HZ, data)
         write_can_log(Path(tmp) / "run.log", load_layout(None, "hub"), data, FS_HZ, start_s=0.0)
-        print(f"  replay CSV, unpaced ({data_s:g} s file)        {spread([cpu_replay(Path(tmp) / 'run.csv', data_s) for _ in range(live_runs)])}")
-        print(f"  replay candump .log, unpaced, hub         {spread([cpu_replay(Path(tmp) / 'run.log', data_s) for _ in range(live_runs)])}")
+        for suffix, what in (("csv", "CSV"), ("log", "candump .log, hub")):
+            values = [cpu_replay(Path(tmp) / f"run.{suffix}", data_s) * hour for _ in range(runs)]
+            out.append(Figure.of(f"replay_{suffix}_cpu_s_per_h", f"replay of a {what} file, unpaced (60 s file)", "CPU s/h",
+                                 values, COMMAND, higher_is_better=False))  # fmt: skip
+    return out
+
+
+def figures(runs: int = 5, seconds: float = 10.0, frames: int = 20000) -> list[Figure]:
+    return decoder_figures(runs, frames) + source_figures(max(3, runs // 2), seconds)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5, help="timed runs per figure (default 5)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="seconds of live data per run (default 10)")
+    parser.add_argument("--frames", type=int, default=20000, help="frames for the decoder figures (default 20000)")
+    args = parser.parse_args()
+    print(table(figures(args.runs, args.seconds, args.frames)))
 
 
 if __name__ == "__main__":
