@@ -640,9 +640,16 @@ def check_events(run: SoakRun, window_s: float, hop_s: float, clear_after: int, 
     for p in sensor_phases:
         mine = [e for e in sensor_faults if owner(e) is p]
         sets = [json.dumps(e.details.get("problems"), sort_keys=True) for e in mine]
-        repeats = sum(1 for a, b in zip(sets, sets[1:], strict=False) if a == b)
-        checks.expect(bool(mine) and repeats == 0 and all(data_s(e) <= p.end_s + window_s for e in mine),
-                      f"{p.label()}: SENSOR_FAULT raised within it, once per change of the problems ({len(mine)}: {', '.join(sets)})")  # fmt: skip
+        # The daemon raises a SENSOR_FAULT only when a problem not yet reported appears: every
+        # event of the phase must name a (channel, problem) pair that no earlier one did.
+        seen: set[tuple[str, str]] = set()
+        stale = 0
+        for e in mine:
+            pairs = {(ch, what) for ch, whats in (e.details.get("problems") or {}).items() for what in whats}
+            stale += not (pairs - seen)
+            seen |= pairs
+        checks.expect(bool(mine) and stale == 0 and all(data_s(e) <= p.end_s + window_s for e in mine),
+                      f"{p.label()}: SENSOR_FAULT raised within it, once per new problem ({len(mine)}: {', '.join(sets)})")  # fmt: skip
         clear = [e for e in sensor_cleared if owner(e) is p]
         checks.expect(len(clear) == 1 and data_s(clear[0]) >= p.end_s if clear else False,
                       f"{p.label()}: one SENSOR_CLEARED after it, within {settle_s(p):g} s (got {len(clear)})")  # fmt: skip

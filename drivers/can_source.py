@@ -11,7 +11,7 @@ segment ends, else at timeout_s whatever arrived (None if nothing did). While a 
 reader does not wake for every frame: once the bus's queue is drained it sleeps coalesce_s (by
 default the time 25 frames take, at most 50 ms) and then takes everything that arrived meanwhile,
 the frames keeping their receive times. At 500 Hz that is 20 wake-ups a second instead of 500
-and about a quarter of the reader's CPU (bench/profile_daemon.py, README "Performance"); a
+and a third of the reader's CPU (`make bench-drivers`, README "Performance"); a
 block's last sample waits at most coalesce_s longer.
 
 When the bus fails (an interface unplugged or deleted, a closed channel) the source counts it,
