@@ -18,8 +18,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         description="Simulate a fleet of wagons that differ as real ones do (masses, springs, dampers, sensors) "
         "over varied speeds, tracks and directions, commission each on healthy runs, then judge healthy, "
         "faulty and damaged-sensor runs with each of the daemon's detection methods, and write README.md, "
-        "results.json and figures/ into DIR. The default plan simulates about 270 hours of running "
-        "(about 20 minutes on two cores); --quick a small one.",
+        "results.json and figures/ into DIR. The default plan simulates about 444 hours of running "
+        "(about 40 minutes on two cores); --quick a small one.",
     )
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the report (created if missing)")
     p.add_argument("--quick", action="store_true", help="a small plan: 2 wagons, short runs, one run per cell")
