@@ -166,6 +166,7 @@ class HealthConfig(_Section):
     min_excitation_rms_mps2: float = Field(0.3, ge=0)
     flat_rms_mps2: float = Field(0.02, ge=0)
     stuck_repeat_fraction: float = Field(0.2, gt=0, le=1)
+    stuck_run_s: float = Field(1.0, gt=0)
     clip_level_mps2: float = Field(155.0, gt=0)
     clipped_fraction: float = Field(1e-4, gt=0, le=1)
     noise_ratio: float = Field(2.0, gt=1)

@@ -10,6 +10,7 @@ when called: the daemon never needs it at run time.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import pickle
 import time
 import tomllib
@@ -26,6 +27,7 @@ from bogiemon.daemon.modelfit import TrainingRun, fit_models, write_models
 from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
 from bogiemon.daemon.service import monitor_settings
 from bogiemon.detection import WindowIndicators
+from bogiemon.detection.channel_stats import ChannelStats
 
 if TYPE_CHECKING:
     from bogiemon.simulator.evaluation import EvaluationData, JudgedRun
@@ -146,6 +148,20 @@ def daemon_methods(data: EvaluationData, config: BogiemonConfig, paper: bool = T
     ]  # fmt: skip
 
 
+def _missing_window_fields(cached: object) -> list[str]:
+    """The fields of today's window records that a cached run's windows do not have (a pickle
+    restores an old dataclass without complaint; the judging would fail on the first use)."""
+    runs = getattr(cached, "runs", ())
+    window = next((r.windows[0] for r in runs if r.windows), None)
+    if window is None:
+        return []
+    missing = [f.name for f in dataclasses.fields(WindowIndicators) if f.name not in vars(window)]
+    channels = vars(window).get("channels")
+    if channels is not None:
+        missing += [f"channels.{f.name}" for f in dataclasses.fields(ChannelStats) if f.name not in vars(channels)]
+    return missing
+
+
 def config_folder() -> Path:
     """bogiemon's config folder, where the shipped models live."""
     return Path(str(resources.files("bogiemon.config")))
@@ -189,6 +205,9 @@ def load_or_simulate(plan: Any, config: BogiemonConfig, data_file: str | Path | 
                 cached = pickle.load(f)  # noqa: S301 - the user's own cache, named on the command line
         except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
             raise EvaluateError(f"{path}: cannot read the simulated data ({exc}): delete it to simulate again") from None
+        missing = _missing_window_fields(cached)
+        if missing:
+            raise EvaluateError(f"{path}: written by an older bogiemon, its windows lack {', '.join(missing)}: delete it to simulate again")
         if getattr(cached, "plan", None) == plan and cached.settings == settings and cached.geometry == geometry:
             return cached  # type: ignore[no-any-return]
         # Another version of the plan at the same settings: its runs are reused, the rest simulated.

@@ -61,6 +61,9 @@ class HealthSettings:
     min_excitation_rms_mps2: float = 0.3  # median channel RMS needed to judge the suspension
     flat_rms_mps2: float = 0.02  # a channel below this while another moves is flat
     stuck_repeat_fraction: float = 0.2  # share of samples equal to the previous one
+    # One value held this long while the wagon moves: a converter that froze within the window.
+    # Healthy, noiseless 16 g / 16-bit sensors hold one value under 0.2 s even at 10 km/h in tare.
+    stuck_run_s: float = 1.0
     clip_level_mps2: float = 155.0  # |a| at or above this is clipping (16 g full scale = 156.9)
     clipped_fraction: float = 1e-4  # share of clipped samples that makes a channel unusable
     noise_ratio: float = 2.0  # a channel's RMS over the median of the three
@@ -172,7 +175,7 @@ def assess_window(
         if not standstill:  # a quiet channel is only suspicious while another one moves
             if rms[c] < settings.flat_rms_mps2:
                 flag(name, SensorProblem.FLAT)
-            if stats.repeat_fraction[c] >= settings.stuck_repeat_fraction:
+            if stats.repeat_fraction[c] >= settings.stuck_repeat_fraction or stats.longest_run_s[c] >= settings.stuck_run_s:
                 flag(name, SensorProblem.STUCK)
     if gaps_last_hour > settings.max_gaps_per_hour:
         flag("source", SensorProblem.DROPOUTS)

@@ -3,8 +3,9 @@
 A dead, stuck, clipping or inverted sensor shows in the raw samples before the indicators: the
 mean (a vertical accelerometer at rest reads about +9.81 m/s^2 when mounted the right way up),
 the peak, the share of samples equal to their predecessor (a frozen converter repeats its last
-value) and the share at or beyond the converter's clip level. Computed per hop and summed per
-window, on the same hops and windows as the indicators.
+value), the longest run of equal consecutive samples (a converter that froze a moment ago: the
+share is still small, the run already long) and the share at or beyond the converter's clip
+level. Computed per hop and combined per window, on the same hops and windows as the indicators.
 """
 
 from __future__ import annotations
@@ -28,15 +29,17 @@ class ChannelStats:
     mean_mps2: Triple
     peak_abs_mps2: Triple
     repeat_fraction: Triple  # share of samples equal to the previous one
+    longest_run_s: Triple  # the longest run of equal consecutive samples, seconds (1 / fs: none)
     clipped_fraction: Triple  # share of samples with |a| >= the clip level
 
 
 class WindowedChannelStats:
     """Feed whole hops; after the first full window, each hop returns that window's ChannelStats."""
 
-    def __init__(self, hops_per_window: int, hop_n: int, clip_level_mps2: float = np.inf) -> None:
+    def __init__(self, hops_per_window: int, hop_n: int, fs_hz: float, clip_level_mps2: float = np.inf) -> None:
         self.hops_per_window = hops_per_window
         self.hop_n = hop_n
+        self.fs_hz = fs_hz
         self.clip_level_mps2 = clip_level_mps2
         # Per hop and channel: sum, peak |a|, repeats inside the hop, repeat across the boundary
         # with the previous hop, samples at the clip level.
@@ -45,6 +48,11 @@ class WindowedChannelStats:
         self._repeats = np.zeros((hops_per_window, 3))
         self._boundary = np.zeros((hops_per_window, 3))
         self._clipped = np.zeros((hops_per_window, 3))
+        # Per hop and channel, in samples: the run that starts the hop, the run that ends it and
+        # the longest inside it; a run crossing hops is joined where the boundary repeats.
+        self._lead = np.zeros((hops_per_window, 3), dtype=np.int64)
+        self._trail = np.zeros((hops_per_window, 3), dtype=np.int64)
+        self._longest = np.zeros((hops_per_window, 3), dtype=np.int64)
         self._last = np.full(3, np.nan)
         self._n_hops = 0
 
@@ -60,6 +68,7 @@ class WindowedChannelStats:
         self._repeats[slot] = (hop[1:] == hop[:-1]).sum(axis=0)
         self._boundary[slot] = hop[0] == self._last  # False after a reset: NaN equals nothing
         self._clipped[slot] = (np.abs(hop) >= self.clip_level_mps2).sum(axis=0)
+        self._lead[slot], self._trail[slot], self._longest[slot] = _runs(hop)
         self._last = hop[-1].copy()
         if self._n_hops < self.hops_per_window:
             return None
@@ -70,16 +79,61 @@ class WindowedChannelStats:
             mean_mps2=_triple(self._sum.sum(axis=0) / n),
             peak_abs_mps2=_triple(self._peak.max(axis=0)),
             repeat_fraction=_triple(repeats / max(n - 1, 1)),
+            longest_run_s=_triple(self._window_longest_run(first) / self.fs_hz),
             clipped_fraction=_triple(self._clipped.sum(axis=0) / n),
         )
 
+    def _window_longest_run(self, first: int) -> NDArray[np.float64]:
+        """Per channel, the longest run of the window whose first hop is in slot `first`.
 
-def channel_stats_reference(window: NDArray[np.float64], clip_level_mps2: float = np.inf) -> ChannelStats:
+        Plain Python over the window's few hops: numpy's per-call cost dominates at this size.
+        """
+        order = [(first + k) % self.hops_per_window for k in range(self.hops_per_window)]
+        lead, trail, longest = self._lead.tolist(), self._trail.tolist(), self._longest.tolist()
+        joined_at = self._boundary.tolist()
+        out = []
+        for c in range(3):
+            best = longest[order[0]][c]
+            current = trail[order[0]][c]  # the run reaching the end of the hops so far
+            for slot in order[1:]:
+                if joined_at[slot][c]:  # the hop's first sample repeats the previous hop's last
+                    best = max(best, current + lead[slot][c])
+                    current = current + self.hop_n if lead[slot][c] == self.hop_n else trail[slot][c]
+                else:
+                    current = trail[slot][c]
+                best = max(best, longest[slot][c], current)
+            out.append(best)
+        return np.array(out, dtype=np.float64)
+
+
+def _runs(hop: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Per channel of an (n, 3) hop: the lengths of its first run, its last run and its longest."""
+    n = hop.shape[0]
+    lead, trail, longest = (np.empty(3, dtype=np.int64) for _ in range(3))
+    for c in range(3):
+        changes = np.flatnonzero(hop[1:, c] != hop[:-1, c])  # a run ends at each of these samples
+        edges = np.concatenate(([-1], changes, [n - 1]))
+        lengths = np.diff(edges)
+        lead[c], trail[c], longest[c] = lengths[0], lengths[-1], lengths.max()
+    return lead, trail, longest
+
+
+def longest_run_reference(column: NDArray[np.float64]) -> int:
+    """The longest run of equal consecutive values, by walking the samples one by one."""
+    best = run = 0
+    for i, value in enumerate(column):
+        run = run + 1 if i > 0 and value == column[i - 1] else 1
+        best = max(best, run)
+    return best
+
+
+def channel_stats_reference(window: NDArray[np.float64], fs_hz: float, clip_level_mps2: float = np.inf) -> ChannelStats:
     """The same statistics of one (n, 3) window, computed directly."""
     n = window.shape[0]
     return ChannelStats(
         mean_mps2=_triple(window.mean(axis=0)),
         peak_abs_mps2=_triple(np.abs(window).max(axis=0)),
         repeat_fraction=_triple(np.count_nonzero(np.diff(window, axis=0) == 0, axis=0) / max(n - 1, 1)),
+        longest_run_s=_triple(np.array([longest_run_reference(window[:, c]) for c in range(3)]) / fs_hz),
         clipped_fraction=_triple(np.count_nonzero(np.abs(window) >= clip_level_mps2, axis=0) / n),
     )

@@ -147,7 +147,7 @@ class IndicatorStream:
             max_lag_n=settings.max_lag_n,
             zero_lag_pairs=_ZERO_LAG_PAIRS,
         )
-        self._channel_stats = WindowedChannelStats(settings.window_n // settings.hop_n, settings.hop_n, clip_level_mps2)
+        self._channel_stats = WindowedChannelStats(settings.window_n // settings.hop_n, settings.hop_n, settings.fs_hz, clip_level_mps2)
         self._spectra = WindowedSpectra(settings.window_n // settings.hop_n, settings.hop_n, settings.fs_hz)
         self.restart(start_s)
 

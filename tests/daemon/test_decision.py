@@ -9,7 +9,7 @@ from bogiemon.daemon.events import EventKind, Severity
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 
-QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.0,) * 3)
+QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
 SETTINGS = DecisionSettings(
     thresholds={"full": {"i4_norm": Threshold(warning=0.1, alarm=0.2, center=0.05)}},
     confirm_k=3,

@@ -17,7 +17,7 @@ from bogiemon.detection.features import COUPLING_FEATURES, COUPLING_NAMES, coupl
 from bogiemon.detection.spectra import BANDS_HZ, WindowSpectra
 
 GEOMETRY = BogieGeometry()
-QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.0,) * 3)
+QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
 HOP_S = 10.0
 N = len(COUPLING_NAMES)
 

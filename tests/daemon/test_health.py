@@ -12,8 +12,8 @@ SETTINGS = HealthSettings()
 OK = SensorStatus.OK
 
 
-def window(rms=(1.0, 1.1, 0.9), repeat=(0.0, 0.0, 0.0), clipped=(0.0, 0.0, 0.0), t=0.0) -> WindowIndicators:
-    stats = ChannelStats((9.81,) * 3, (10.0,) * 3, tuple(repeat), tuple(clipped))
+def window(rms=(1.0, 1.1, 0.9), repeat=(0.0, 0.0, 0.0), clipped=(0.0, 0.0, 0.0), t=0.0, run_s=(0.002, 0.002, 0.002)) -> WindowIndicators:
+    stats = ChannelStats((9.81,) * 3, (10.0,) * 3, tuple(repeat), tuple(run_s), tuple(clipped))
     return WindowIndicators(
         start_s=t, end_s=t + 60, i1=0, i2=0, i3=0, i4=0, i1_norm=0, i2_norm=0, i3_norm=0, i4_norm=0,
         rms_mps2=tuple(rms), rms_bounce_mps2=1, rms_pitch_radps2=1, rms_roll_radps2=1, channels=stats,
@@ -30,6 +30,7 @@ def test_a_running_healthy_bogie_is_judgeable() -> None:
     [
         ({"rms": (0.001, 1.0, 1.0)}, (OK, OK, OK), 0, {"a1": (SensorProblem.FLAT,)}),
         ({"repeat": (0.0, 0.9, 0.0)}, (OK, OK, OK), 0, {"a2": (SensorProblem.STUCK,)}),
+        ({"run_s": (0.002, 0.002, 1.5)}, (OK, OK, OK), 0, {"a3": (SensorProblem.STUCK,)}),
         ({"clipped": (0.0, 0.0, 0.01)}, (OK, OK, OK), 0, {"a3": (SensorProblem.CLIPPING,)}),
         ({"rms": (1.0, 9.0, 1.0)}, (OK, OK, OK), 0, {"a2": (SensorProblem.NOISY,)}),
         ({"rms": (60.0, 60.0, 60.0)}, (OK, OK, OK), 0, {c: (SensorProblem.NOISY,) for c in ("a1", "a2", "a3")}),
@@ -37,7 +38,7 @@ def test_a_running_healthy_bogie_is_judgeable() -> None:
         ({}, (SensorStatus.OVER_RANGE, OK, OK), 0, {"a1": (SensorProblem.OVER_RANGE,)}),
         ({}, (OK, OK, OK), 7, {"source": (SensorProblem.DROPOUTS,)}),
     ],
-    ids=["flat", "stuck", "clipping", "noisy-ratio", "noisy-absolute", "fault-bit", "over-range-bit", "dropouts"],
+    ids=["flat", "stuck", "stuck-just-now", "clipping", "noisy-ratio", "noisy-absolute", "fault-bit", "over-range-bit", "dropouts"],
 )
 def test_each_sensor_problem_is_named_on_its_channel(kwargs, status, gaps, expected) -> None:
     health = assess_window(window(**kwargs), SETTINGS, status, gaps)

@@ -16,6 +16,7 @@ from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.service import monitor_settings
 from bogiemon.daemon.store import EventStore
+from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.drivers.base import Block
 from bogiemon.simulator import Scenario, SensorModel, SpeedProfile, simulate
 
@@ -72,6 +73,30 @@ def test_a_damaged_channel_is_a_sensor_fault_and_never_a_suspension_alarm(health
     faults = [e for e in events if e.kind is EventKind.SENSOR_FAULT]
     assert faults and problem in faults[0].details["problems"][channel]
     assert monitor.counters.judged == 0 or damage is stuck  # stuck: the first windows are still whole
+
+
+def test_a_channel_that_froze_two_seconds_before_a_window_ends_is_stuck_in_that_window(healthy_run, tmp_path) -> None:
+    """Frozen for the last 2 s of a 120 s window: 2 % of its samples repeat, far below the share
+    rule, but the run of one value is 2 s long, so that window is already not judged."""
+    accel = healthy_run.copy()
+    accel[int(128 * FS_HZ) :, 1] = accel[int(128 * FS_HZ), 1]
+    monitor, events = feed(accel, tmp_path)
+    faults = [e for e in events if e.kind is EventKind.SENSOR_FAULT]
+    assert faults and faults[0].details["problems"] == {"a2": ["stuck"]}
+    assert faults[0].details["window_end_s"] == pytest.approx(1.7e9 + 130.0)
+    assert monitor.counters.judged == 1  # the window 0-120 s only
+    assert not {e.kind for e in events} & SUSPENSION_KINDS
+
+
+def test_healthy_noiseless_quantised_sensors_at_walking_pace_are_not_stuck() -> None:
+    """The run rule's margin: ideal sensors quantised to a 16 g / 16-bit step hold one value far
+    shorter than stuck_run_s even at 10 km/h in tare on good track, the slowest, smoothest case."""
+    lsb_mps2 = 2 * 156.9 / 2**16
+    run = simulate(Scenario(load="tare", speed=SpeedProfile.constant(10.0), duration_s=130.0, seed=3,
+                            sensor=SensorModel(quantum_mps2=lsb_mps2))).accel_mps2  # fmt: skip
+    settings = monitor_settings(BogiemonConfig())
+    stats = channel_stats_reference(run[-int(120 * FS_HZ) :], FS_HZ)
+    assert max(stats.longest_run_s) < settings.health.stuck_run_s / 4
 
 
 def test_the_damaged_runs_would_have_looked_like_faults_if_judged(healthy_run, tmp_path) -> None:

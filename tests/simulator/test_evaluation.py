@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import math
+import pickle
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.evaluate import daemon_methods, report_sections
+from bogiemon.daemon.evaluate import EvaluateError, daemon_methods, load_or_simulate, report_sections
 from bogiemon.detection import Corner
 from bogiemon.simulator.evaluation import (
     HEALTHY,
@@ -117,6 +118,21 @@ def test_the_sequences_group_the_healthy_runs_and_each_trend_sequence(tiny) -> N
     trend = [g for g in groups if g[0].run.role == "trend"]
     assert len(trend) == 20 and all([r.run.number for r in g] == [0, 1] for g in trend)
     assert all(len(g) == 1 for g in groups if g[0].run.role in ("fault", "sensor"))
+
+
+def test_a_cached_simulation_is_reused_and_one_from_an_older_bogiemon_refused(tiny, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    path = tmp_path / "data.pkl"
+    path.write_bytes(pickle.dumps(tiny))
+    reused = load_or_simulate(tiny.plan, CONFIG, path, None)
+    assert reused.runs == tiny.runs and reused.elapsed_s == tiny.elapsed_s  # not simulated again
+    # A pickle restores an old dataclass without its new fields; the judging would fail later.
+    stale = pickle.loads(path.read_bytes())
+    for run in stale.runs:
+        for window in run.windows:
+            object.__delattr__(window.channels, "longest_run_s")
+    path.write_bytes(pickle.dumps(stale))
+    with pytest.raises(EvaluateError, match=r"older bogiemon, its windows lack channels.longest_run_s: delete it"):
+        load_or_simulate(tiny.plan, CONFIG, path, None)
 
 
 def test_every_method_is_judged_and_the_report_is_written(tiny, tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -110,7 +110,7 @@ def test_roc_auc_is_the_mann_whitney_statistic(faulty: list[int], healthy: list[
     assert roc_auc(f, h) == pytest.approx(u / (len(f) * len(h)), abs=1e-12)
 
 
-QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.0,) * 3)
+QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
 
 
 def _window(i4_norm: float, t: float) -> WindowIndicators:
