@@ -64,6 +64,15 @@ class Level(enum.IntEnum):
     WARNING = 1
     ALARM = 2
 
+    @classmethod
+    def of(cls, deviation: float, warning: float, alarm: float) -> Level:
+        """The level of a deviation from healthy against its warning and alarm levels."""
+        if deviation >= alarm:
+            return cls.ALARM
+        if deviation >= warning:
+            return cls.WARNING
+        return cls.OK
+
 
 class Mode(enum.Enum):
     NORMAL = "normal"
@@ -84,12 +93,7 @@ class Threshold:
             raise ValueError(f"need 0 < warning <= alarm, got warning={self.warning}, alarm={self.alarm}")
 
     def level(self, value: float) -> Level:
-        deviation = abs(value - self.center)
-        if deviation >= self.alarm:
-            return Level.ALARM
-        if deviation >= self.warning:
-            return Level.WARNING
-        return Level.OK
+        return Level.of(abs(value - self.center), self.warning, self.alarm)
 
 
 @dataclass(frozen=True)
@@ -215,7 +219,7 @@ class Decider:
             if shift is None:  # no spectra, or a mode without power: nothing to judge by
                 return Judgement({FUSED_SCORE: math.nan}, {FUSED_SCORE: Level.OK}, None, name)
             score = float(np.dot(shift, shift))
-            level = Level.ALARM if score >= baseline.alarm else Level.WARNING if score >= baseline.warning else Level.OK
+            level = Level.of(score, baseline.warning, baseline.alarm)
             return Judgement({FUSED_SCORE: score}, {FUSED_SCORE: level}, shift, name, score / baseline.alarm)
         thresholds = self.settings.thresholds.get(load)
         if thresholds is None:
@@ -291,8 +295,7 @@ class Decider:
             mean = mean + fused.trend_weight(load) * (np.asarray(judgement.shift) - mean)
             s.trend_mean[load] = [float(v) for v in mean]
         trend = float(mean @ mean)
-        lv = baseline.levels
-        level = Level.ALARM if trend >= lv.trend_alarm else Level.WARNING if trend >= lv.trend_warning else Level.OK
+        level = Level.of(trend, baseline.levels.trend_warning, baseline.levels.trend_alarm)
         return dataclasses.replace(judgement, trend=trend, trend_level=level)
 
     def diagnosis(self, load: str) -> Diagnosis:
