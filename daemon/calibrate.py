@@ -19,7 +19,8 @@ outliers):
     warning = max(z(p_warning) * sigma, the (1 - p_warning) quantile of |d|)
     alarm   = max(z(p_alarm) * sigma, 1.1 * the largest |d| seen, warning)
 
-where z(p) is the two-sided normal quantile of a per-window false-alarm rate p. The empirical
+where z(p) is the two-sided normal quantile of a per-window false-alarm rate p (the rule itself is
+daemon/rules.py's fit_threshold, which the lab's study uses too). The empirical
 terms keep heavy-tailed indicators honest: no healthy calibration window reaches the alarm level,
 and confirmation (k of n windows) lowers the false-alarm rate of CONFIRMED far below p_alarm.
 
@@ -34,19 +35,18 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig
-from bogiemon.daemon.decision import INDICATOR_FIELDS, Threshold
+from bogiemon.daemon.decision import INDICATOR_FIELDS
 from bogiemon.daemon.health import assess_window
 from bogiemon.daemon.models import Levels, coupling_features, shipped_models
+from bogiemon.daemon.rules import Threshold, fit_threshold
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.features import COUPLING_NAMES
 
 MIN_WINDOWS = 30
-ALARM_MARGIN = 1.1
 LOADS = ("full", "tare")
 
 
@@ -175,16 +175,8 @@ def calibrate_windows(
 
 
 def _indicator(name: str, values: list[float], warning_rate: float, alarm_rate: float) -> IndicatorCalibration:
-    z_warning = float(stats.norm.isf(warning_rate / 2))
-    z_alarm = float(stats.norm.isf(alarm_rate / 2))
-    x = np.array(values)
-    median = float(np.median(x))
-    deviation = np.abs(x - median)
-    sigma = 1.4826 * float(np.median(deviation))
-    largest = float(deviation.max())
-    warning = max(z_warning * sigma, float(np.quantile(deviation, 1 - warning_rate)), np.finfo(float).tiny)
-    alarm = max(z_alarm * sigma, ALARM_MARGIN * largest, warning)
-    return IndicatorCalibration(name, median, sigma, largest, Threshold(warning=warning, alarm=alarm, center=median))
+    fit = fit_threshold(values, warning_rate, alarm_rate)
+    return IndicatorCalibration(name, fit.center, fit.robust_sigma, fit.max_deviation, Threshold(warning=fit.warning, alarm=fit.alarm, center=fit.center))
 
 
 def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: str) -> FusedCalibration | None:

@@ -12,7 +12,7 @@ import json
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
@@ -21,6 +21,9 @@ from bogiemon.daemon.health import HealthSettings
 from bogiemon.daemon.models import Baseline, Levels, LoadModel, shipped_models
 from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
 from bogiemon.detection.features import COUPLING_NAMES
+
+if TYPE_CHECKING:
+    from bogiemon.daemon.monitor import MonitorSettings
 
 DEFAULT_CONFIG_NAME = "bogiemon.toml"
 
@@ -409,6 +412,24 @@ class BogiemonConfig(_Section):
             highpass_order=p.highpass_order,
             lowpass_hz=p.lowpass_hz,
             lowpass_order=p.lowpass_order,
+        )
+
+    def monitor_settings(self, load: str | None = None, fs_hz: float | None = None) -> MonitorSettings:
+        """What the monitor needs from the config; `load` overrides decision.load (e.g. --load),
+        fs_hz the configured rate (e.g. a recording's)."""
+        from bogiemon.daemon.monitor import MonitorSettings  # the monitor brings the store: only when built
+
+        load = load or self.decision.load
+        self.check_models()
+        return MonitorSettings(
+            processing=self.processing_settings(fs_hz),
+            geometry=self.bogie_geometry(),
+            health=self.health_settings(),
+            decision=self.decision_settings(),
+            load=load,
+            config_hash=self.digest(),
+            sensor_clear_after_windows=self.health.clear_after_windows,
+            load_model=self.load_model() if load == "auto" else None,
         )
 
     def digest(self) -> str:

@@ -51,6 +51,7 @@ import numpy as np
 from bogiemon.daemon.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.daemon.models import Baseline, SignatureSet, coupling_features
+from bogiemon.daemon.rules import Level, Threshold, confirms, trend_weight
 from bogiemon.detection import BogieGeometry, WindowIndicators
 
 INDICATOR_FIELDS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
@@ -59,41 +60,10 @@ FUSED_SCORE = "fused_score"  # the fused method's value in judgements and events
 FUSED_TREND = "fused_trend"  # its trend
 
 
-class Level(enum.IntEnum):
-    OK = 0
-    WARNING = 1
-    ALARM = 2
-
-    @classmethod
-    def of(cls, deviation: float, warning: float, alarm: float) -> Level:
-        """The level of a deviation from healthy against its warning and alarm levels."""
-        if deviation >= alarm:
-            return cls.ALARM
-        if deviation >= warning:
-            return cls.WARNING
-        return cls.OK
-
-
 class Mode(enum.Enum):
     NORMAL = "normal"
     SUSPECTED = "suspected"
     CONFIRMED = "confirmed"
-
-
-@dataclass(frozen=True)
-class Threshold:
-    """Levels for |value - center| of one indicator."""
-
-    warning: float
-    alarm: float
-    center: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not 0 < self.warning <= self.alarm:
-            raise ValueError(f"need 0 < warning <= alarm, got warning={self.warning}, alarm={self.alarm}")
-
-    def level(self, value: float) -> Level:
-        return Level.of(abs(value - self.center), self.warning, self.alarm)
 
 
 @dataclass(frozen=True)
@@ -108,7 +78,7 @@ class FusedSettings:
 
     def trend_weight(self, load: str) -> float:
         """The weight of one judged window in the trend's exponentially weighted mean."""
-        return 1.0 - math.exp(-self.hop_s / self.baselines[load].trend_tau_s)
+        return trend_weight(self.hop_s, self.baselines[load].trend_tau_s)
 
 
 @dataclass(frozen=True)
@@ -251,7 +221,7 @@ class Decider:
         if math.isfinite(judgement.trend):
             details["trend"] = judgement.trend
 
-        by_windows = sum(s.recent_alarms) >= cfg.confirm_k
+        by_windows = confirms(s.recent_alarms, cfg.confirm_k)
         by_trend = judgement.trend_level >= Level.ALARM
         if s.mode is not Mode.CONFIRMED and (by_windows or by_trend):
             s.mode = Mode.CONFIRMED

@@ -4,7 +4,7 @@
     config/fused_model.toml      the fused score: the healthy couplings' spread, per load
     config/fault_signatures.toml the coupling patterns of each corner's faults, per load
 
-They are fitted on a simulated training fleet by `bogiemon evaluate --fit-models` (daemon/modelfit.py;
+They are fitted on a simulated training fleet by `bogiemon evaluate --fit-models` (lab/modelfit.py;
 the wagons, runs and numbers are in each file's header and in docs/robust/README.md) and read
 here into plain dataclasses. A wagon's own healthy center comes from `bogiemon calibrate`.
 """

@@ -18,7 +18,6 @@ from bogiemon.daemon.config import BogiemonConfig, ReplaySourceConfig
 from bogiemon.daemon.monitor import Monitor, MonitorCounters, WindowReport
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.ringbuffer import BlockRing
-from bogiemon.daemon.service import monitor_settings
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.daemon.sources import open_source
 from bogiemon.daemon.store import EventStore
@@ -49,7 +48,7 @@ def replay(
                 run_config = config.model_copy(update={"source": source_config})
                 source = open_source(run_config)
                 if monitor is None:
-                    monitor = Monitor(monitor_settings(config, load, source.fs_hz), store, sinks, observers)
+                    monitor = Monitor(config.monitor_settings(load, source.fs_hz), store, sinks, observers)
                 ring = BlockRing(max(1, int(config.pipeline.ring_capacity_s * source.fs_hz)), backpressure=source.finite)
                 pipeline = Pipeline(source, monitor, ring)
                 pipeline.start()

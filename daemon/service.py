@@ -20,7 +20,7 @@ from types import FrameType
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
-from bogiemon.daemon.monitor import Monitor, MonitorSettings, WindowReport
+from bogiemon.daemon.monitor import Monitor, WindowReport
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.ringbuffer import BlockRing
@@ -31,22 +31,6 @@ from bogiemon.drivers.base import Source
 SourceFactory = Callable[[BogiemonConfig], Source]
 STATUS_PERIOD_S = 10.0
 EXIT_OK, EXIT_INTERNAL_ERROR = 0, 1
-
-
-def monitor_settings(config: BogiemonConfig, load: str | None = None, fs_hz: float | None = None) -> MonitorSettings:
-    """What the monitor needs from a config; `load` overrides decision.load (e.g. --load)."""
-    load = load or config.decision.load
-    config.check_models()
-    return MonitorSettings(
-        processing=config.processing_settings(fs_hz),
-        geometry=config.bogie_geometry(),
-        health=config.health_settings(),
-        decision=config.decision_settings(),
-        load=load,
-        config_hash=config.digest(),
-        sensor_clear_after_windows=config.health.clear_after_windows,
-        load_model=config.load_model() if load == "auto" else None,
-    )
 
 
 def status_line(report: WindowReport | None, monitor: Monitor) -> str:
@@ -122,7 +106,7 @@ class Service:
     def run(self) -> int:
         store = EventStore(self.config.state.directory)
         self.delivery = Delivery(store.path.parent)  # MQTT and CAN alarms, each in a thread of its own
-        monitor = Monitor(monitor_settings(self.config, self.load), store, [*self.sinks, self.delivery], self.observers)
+        monitor = Monitor(self.config.monitor_settings(self.load), store, [*self.sinks, self.delivery], self.observers)
         self.delivery.start(self.config, monitor)
         self._log.info(
             "starting", config=str(self.config_path or "default"), config_hash=self.config.digest(),
@@ -186,7 +170,7 @@ class Service:
         old, self.config = self.config, new
         if new.state != old.state:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
-        settings = monitor_settings(new, self.load, pipeline.source.fs_hz)
+        settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
         pipeline.with_monitor(lambda m: m.reconfigure(settings))
         self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
         if new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline:

@@ -1,6 +1,6 @@
 """Fitting the shipped models (daemon/models.py) on a training fleet of simulated wagons.
 
-    runs = [TrainingRun(...), ...]                 # the evaluation's training runs (simulator)
+    runs = [TrainingRun(...), ...]                 # the evaluation's training runs (lab/robust)
     files = fit_models(runs, geometry, health, processing, confirm_k=3, confirm_n=5, description=..., calibration_runs=12)
     write_models(files, "config")                  # load_model.toml, fused_model.toml, fault_signatures.toml
 
@@ -18,7 +18,7 @@ healthy coupling vectors around each wagon's own mean (pooled). Its levels come 
 each training wagon is "commissioned" on its first healthy runs (the center: as many as the
 evaluation fleet's commissioning) and
 its other healthy runs are scored, in order, as one stretch of running; a run's sustained score is
-the largest value that k of n consecutive windows reach (what confirmation needs); the alarm level
+the largest value that k of n consecutive windows reach (daemon/rules.py sustained_level: the highest level k of n confirms at); the alarm level
 is the larger of 1.1 x the largest sustained score and the level an exponential tail fitted to
 the upper quarter of the runs' sustained scores exceeds once in TARGET_RUNS_PER_ALARM runs; the
 warning level is the 99th percentile of the scored windows. The trend (the exponentially weighted
@@ -57,12 +57,12 @@ from bogiemon.daemon.models import (
     coupling_features,
     whitening_of,
 )
+from bogiemon.daemon.rules import ALARM_MARGIN, sustained_level, trend_weight
 from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, load_vector
 
 LOAD_FEATURES = ("bounce_share_3", "bounce_share_5", "roll_share_2", "roll_share_6")
 LOAD_L2 = 1e-3
-ALARM_MARGIN = 1.1
 TARGET_RUNS_PER_ALARM = 6000.0  # about one false alarm per 1000 h of 10-minute runs
 # The trend's time constant: long enough to span several track sections and speeds (a healthy
 # wagon's couplings move with them), short enough to confirm a standing fault within an hour.
@@ -114,17 +114,6 @@ def fit_logistic(x: NDArray[np.float64], y: NDArray[np.float64], l2: float = LOA
     return mean, scale, w[:-1], float(w[-1])
 
 
-def sustained(scores: Sequence[float], confirm_k: int, confirm_n: int) -> float:
-    """The largest value that confirm_k of any confirm_n consecutive scores reach (the Decider's
-    history, shorter at the start); -inf for fewer than confirm_k scores."""
-    x = np.asarray(scores, dtype=np.float64)
-    best = -math.inf
-    for i in range(confirm_k - 1, len(x)):
-        recent = np.sort(x[max(0, i - confirm_n + 1) : i + 1])[::-1]
-        best = max(best, float(recent[confirm_k - 1]))
-    return best
-
-
 def tail_level(run_maxima: Sequence[float], runs_per_event: float) -> float:
     """The level an exponential tail fitted to the upper quarter of run_maxima exceeds once in
     runs_per_event runs (maximum likelihood: the mean excess over the quarter's threshold)."""
@@ -155,7 +144,7 @@ class _Levels:
 
 def _levels(score_runs: Sequence[NDArray[np.float64]], confirm_k: int, confirm_n: int) -> _Levels:
     """Levels of a score judged k of n: from each run's sustained score."""
-    return _levels_of([sustained(s, confirm_k, confirm_n) for s in score_runs if len(s) >= confirm_k], score_runs)
+    return _levels_of([sustained_level(s, confirm_k, confirm_n) for s in score_runs if len(s) >= confirm_k], score_runs)
 
 
 def _levels_of(maxima: Sequence[float], score_runs: Sequence[NDArray[np.float64]]) -> _Levels:
@@ -169,7 +158,7 @@ def _levels_of(maxima: Sequence[float], score_runs: Sequence[NDArray[np.float64]
 def trend_runs(z_runs: Sequence[NDArray[np.float64]], hop_s: float, tau_s: float = TREND_TAU_S) -> list[NDArray[np.float64]]:
     """Per run, the trend |m|^2 after each window, m the weighted mean of the whitened shifts z
     carried from run to run (as the Decider does; from zero, a freshly commissioned wagon)."""
-    weight = 1.0 - math.exp(-hop_s / tau_s)
+    weight = trend_weight(hop_s, tau_s)
     m = np.zeros(z_runs[0].shape[1]) if z_runs else np.zeros(0)
     out = []
     for z in z_runs:
@@ -374,7 +363,7 @@ def write_models(models: FittedModels, directory: str | Path) -> list[Path]:
     directory = Path(directory)
     stamp = f"{datetime.now(timezone.utc):%Y-%m-%d}"
     header = [
-        "# Fitted by `bogiemon evaluate --fit-models` (daemon/modelfit.py states every rule) on " + stamp + ",",
+        "# Fitted by `bogiemon evaluate --fit-models` (lab/modelfit.py states every rule) on " + stamp + ",",
         *(f"# {line}" for line in models.description.splitlines()),
         "# Data, not code: regenerate rather than edit by hand.",
     ]

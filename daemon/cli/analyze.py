@@ -6,8 +6,6 @@ import argparse
 import json
 import sys
 
-from bogiemon.daemon.analysis import analyze_recording, indicators_as_dict, open_recording
-from bogiemon.daemon.config import load_config
 
 _COLUMNS = ("start_s", "end_s", "I1", "I2", "I3", "I4", "I1n", "I2n", "I3n", "I4n")
 
@@ -21,6 +19,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.analysis import analyze_recording, indicators_as_dict, open_recording
+    from bogiemon.daemon.config import load_config
     config = load_config(args.config)
     out = sys.stdout
     for path in args.files:

@@ -6,9 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from bogiemon.daemon.calibrate import calibrate, fragment
-from bogiemon.daemon.config import load_config
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("calibrate", help="learn the wagon's healthy baseline (fused score and thresholds) from recordings of it")
@@ -26,6 +23,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.calibrate import calibrate, fragment
+    from bogiemon.daemon.config import load_config
     config = load_config(args.config)
     names = [n.strip() for n in args.indicators.split(",")] if args.indicators else None
     result = calibrate(args.files, config, args.load, names, args.warning_rate, args.alarm_rate)

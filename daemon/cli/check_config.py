@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from bogiemon.daemon import tomlout
-from bogiemon.daemon.config import load_config
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("check-config", help="validate a config file and print the resolved config")
@@ -15,6 +12,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon import tomlout
+    from bogiemon.daemon.config import load_config
     config = load_config(args.file)
     print(f"# {args.file or 'default config'}: valid (digest {config.digest()})")
     print(tomlout.dumps(config.model_dump(mode="json")), end="")

@@ -13,11 +13,12 @@ import sys
 import tempfile
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from bogiemon.daemon.config import SimulatedSourceConfig, load_config
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.logs import configure_logging
-from bogiemon.daemon.monitor import WindowReport
+
+if TYPE_CHECKING:
+    from bogiemon.daemon.monitor import WindowReport
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -77,6 +78,8 @@ class LiveDisplay:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.config import SimulatedSourceConfig, load_config
+    from bogiemon.daemon.logs import configure_logging
     from bogiemon.daemon.service import Service
     from bogiemon.daemon.sources import open_source
 

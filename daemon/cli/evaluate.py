@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 
 from bogiemon.daemon.cli.progress import ProgressBar, check_report_folder
-from bogiemon.daemon.config import load_config
-from bogiemon.daemon.evaluate import EvaluateError, run_evaluation
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -42,6 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.config import load_config
+    from bogiemon.lab.robust.evaluate import EvaluateError, run_evaluation
     out = Path(args.output)
     check_report_folder(out, not args.no_figures, EvaluateError)
     command = " ".join(

@@ -8,10 +8,10 @@ import re
 import time
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from bogiemon.daemon.config import load_config
-from bogiemon.daemon.events import Event
-from bogiemon.daemon.store import EventStore
+if TYPE_CHECKING:
+    from bogiemon.daemon.events import Event
 
 _RELATIVE = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|h|d)$")
 _UNIT_S = {"s": 1, "min": 60, "h": 3600, "d": 86400}
@@ -58,6 +58,8 @@ def format_event(event: Event) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.config import load_config
+    from bogiemon.daemon.store import EventStore
     state_dir = Path(args.state_dir) if args.state_dir else load_config(args.config).state.directory
     since_s = parse_since(args.since, time.time()) if args.since else None
     store = EventStore(state_dir, readonly=True)

@@ -12,11 +12,11 @@ import socket
 import sys
 import threading
 from datetime import datetime, timezone
+from typing import TYPE_CHECKING
 
-from bogiemon.daemon.cli.events import format_event
-from bogiemon.daemon.delivery.connection import ConnectionSettings
-from bogiemon.daemon.delivery.listener import Listener, ListenError, Received, ReceivedStore
-from bogiemon.daemon.delivery.schema import dump
+if TYPE_CHECKING:
+    from bogiemon.daemon.delivery.connection import ConnectionSettings
+    from bogiemon.daemon.delivery.listener import Received
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -38,6 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def parse_broker(text: str) -> tuple[str, int]:
+    from bogiemon.daemon.delivery.listener import ListenError
     host, sep, port = text.rpartition(":")
     host = host.removeprefix("[").removesuffix("]")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
@@ -46,6 +47,8 @@ def parse_broker(text: str) -> tuple[str, int]:
 
 
 def connection_from_args(args: argparse.Namespace) -> ConnectionSettings:
+    from bogiemon.daemon.delivery.connection import ConnectionSettings
+    from bogiemon.daemon.delivery.listener import ListenError
     host, port = parse_broker(args.broker)
     if bool(args.tls_cert) != bool(args.tls_key):
         raise ListenError("--tls-cert and --tls-key go together")
@@ -65,6 +68,8 @@ def connection_from_args(args: argparse.Namespace) -> ConnectionSettings:
 
 def format_received(received: Received, as_json: bool, with_status: bool) -> str | None:
     """The line to print for a message, or None."""
+    from bogiemon.daemon.cli.events import format_event
+    from bogiemon.daemon.delivery.schema import dump
     if received.event is not None:
         if received.duplicate:
             return None
@@ -83,6 +88,7 @@ def format_received(received: Received, as_json: bool, with_status: bool) -> str
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.delivery.listener import Listener, ListenError, Received, ReceivedStore
     connection = connection_from_args(args)
     if args.count is not None and args.count < 1:
         raise ListenError(f"--count: expected a positive number of events, got {args.count}")

@@ -1,4 +1,9 @@
-"""The `bogiemon` command: parses the command line and hands over to one module per command."""
+"""The `bogiemon` command: parses the command line and hands over to one module per command.
+
+Start-up is a feature on a gateway (and in a small VM on a test bench): this module and the
+command modules import only argparse at the top; each command imports its library when it runs,
+so `bogiemon run` never loads the offline lab, the simulator or a plotting library.
+"""
 
 from __future__ import annotations
 
@@ -6,37 +11,34 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bogiemon.daemon.calibrate import CalibrationError
 from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, evaluate, events, listen, play, replay, run, simulate, study
-from bogiemon.daemon.config import ConfigError
-from bogiemon.daemon.delivery.connection import CredentialsError
-from bogiemon.daemon.evaluate import EvaluateError
-from bogiemon.daemon.models import ModelError
-from bogiemon.daemon.delivery.listener import ListenError
-from bogiemon.daemon.store import StoreError
-from bogiemon.drivers.candb import DbcError
-from bogiemon.drivers.player import PlayError
-from bogiemon.drivers.recording import RecordingError
-from bogiemon.simulator.errors import SimulationError
 
 COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, play, listen)
-# Errors a user can cause: one line on stderr and exit status 2, never a traceback.
-USER_ERRORS: tuple[type[Exception], ...] = (
-    CalibrationError,
-    ConfigError,
-    CredentialsError,
-    DbcError,
-    ListenError,
-    ModelError,
-    PlayError,
-    RecordingError,
-    SimulationError,
-    StoreError,
-    EvaluateError,
-    events.TimeArgumentError,
-    study.StudyError,
+# Errors a user can cause: one line on stderr and exit status 2, never a traceback. Named, not
+# imported, so that the command line loads only the command it runs; a test resolves every name.
+USER_ERRORS: frozenset[str] = frozenset(
+    {
+        "bogiemon.daemon.calibrate.CalibrationError",
+        "bogiemon.daemon.config.ConfigError",
+        "bogiemon.daemon.delivery.connection.CredentialsError",
+        "bogiemon.daemon.delivery.listener.ListenError",
+        "bogiemon.daemon.models.ModelError",
+        "bogiemon.daemon.store.StoreError",
+        "bogiemon.drivers.candb.DbcError",
+        "bogiemon.drivers.player.PlayError",
+        "bogiemon.drivers.recording.RecordingError",
+        "bogiemon.simulator.errors.SimulationError",
+        "bogiemon.lab.robust.evaluate.EvaluateError",
+        "bogiemon.daemon.cli.events.TimeArgumentError",
+        "bogiemon.daemon.cli.study.StudyError",
+    }
 )
 EXIT_USER_ERROR = 2
+
+
+def is_user_error(exc: BaseException) -> bool:
+    """Whether exc is (a subclass of) one of USER_ERRORS."""
+    return any(f"{cls.__module__}.{cls.__qualname__}" in USER_ERRORS for cls in type(exc).__mro__)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,14 +56,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.run(args))
-    except USER_ERRORS as exc:
-        print(f"bogiemon: error: {exc}", file=sys.stderr)
-        return EXIT_USER_ERROR
     except BrokenPipeError:  # e.g. `bogiemon analyze ... | head`
         sys.stderr.close()
         return 0
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:
+        if not is_user_error(exc):
+            raise
+        print(f"bogiemon: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
 
 
 if __name__ == "__main__":

@@ -6,18 +6,12 @@ import argparse
 import json
 import sys
 
+from typing import TYPE_CHECKING
+
 from bogiemon.daemon.cli.events import format_event
-from bogiemon.daemon.config import load_config
-from bogiemon.daemon.events import Event
-from bogiemon.daemon.sinks import EventSink
 
-
-class _PrintSink(EventSink):
-    def __init__(self, as_json: bool) -> None:
-        self.as_json = as_json
-
-    def publish(self, event: Event) -> None:
-        print(json.dumps(event.as_dict()) if self.as_json else format_event(event), flush=True)
+if TYPE_CHECKING:
+    from bogiemon.daemon.sinks import EventSink
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -32,10 +26,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.config import load_config
     from bogiemon.daemon.replay import replay
 
     config = load_config(args.config)
-    summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [_PrintSink(args.json)])
+    summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
     c = summary.counters
     print(
         f"replayed {summary.recordings} recording(s): {c.windows} windows, {c.judged} judged, {c.gated} gated, "
@@ -43,3 +38,15 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def print_sink(as_json: bool) -> EventSink:
+    """A sink that prints each committed event, as a line or as JSON."""
+    from bogiemon.daemon.events import Event
+    from bogiemon.daemon.sinks import EventSink
+
+    class PrintSink(EventSink):
+        def publish(self, event: Event) -> None:
+            print(json.dumps(event.as_dict()) if as_json else format_event(event), flush=True)
+
+    return PrintSink()

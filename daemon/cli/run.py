@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from bogiemon.daemon.logs import configure_logging
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("run", help="run the monitoring service")
@@ -16,6 +14,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.logs import configure_logging
     from bogiemon.daemon.service import Service
     from bogiemon.daemon.sources import open_source
 

@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 
 from bogiemon.daemon.cli.progress import ProgressBar
-from bogiemon.daemon.config import load_config
-from bogiemon.simulator.errors import SimulationError
 
 _TRACKS = "perfect, erri-low, erri-high, fra-4, fra-5, fra-6"
 
@@ -56,6 +54,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 def run(args: argparse.Namespace) -> int:
     # The simulator (numba) is imported only by this command.
+    from bogiemon.daemon.config import load_config
+    from bogiemon.simulator.errors import SimulationError
     from bogiemon.simulator.run import simulate, write_recording
     from bogiemon.simulator.scenario import Scenario, SpeedProfile
     from bogiemon.simulator.sensors import SensorModel

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 from bogiemon.daemon.cli.progress import ProgressBar, check_report_folder
-from bogiemon.daemon.config import load_config
 
 
 class StudyError(ValueError):
@@ -50,7 +49,8 @@ def _window_lengths(text: str | None) -> tuple[float, ...]:
 
 def run(args: argparse.Namespace) -> int:
     # The simulator (numba) and the study are imported only by this command.
-    from bogiemon.simulator.study import StudyPlan, run_study, window_settings, write_report
+    from bogiemon.daemon.config import load_config
+    from bogiemon.lab.study import StudyPlan, run_study, window_settings, write_report
 
     out = Path(args.output)
     check_report_folder(out, not args.no_figures, StudyError)

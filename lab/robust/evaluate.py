@@ -1,100 +1,36 @@
-"""The robustness evaluation with the daemon's own judgement: `bogiemon evaluate -o docs/robust`.
+"""The robustness evaluation, end to end: `bogiemon evaluate -o docs/robust`.
 
-The simulator's engine (simulator/evaluation.py) draws the fleet, simulates every run and scores
-the results; this module hands it the daemon's methods, each a config run through the daemon's
-WindowJudge (sensor health, gating, load state, decision, diagnosis) window by window, commissioned
-per wagon with `calibrate`'s own code where the method calibrates. It imports the simulator only
-when called: the daemon never needs it at run time.
+    plan -> simulate_plan (lab/robust/fleet.py) -> fit the shipped models on the training fleet
+    (lab/modelfit.py, with --fit-models) -> judge every method with the daemon's own code
+    (lab/robust/judge.py) -> score (lab/robust/score.py) -> the report (lab/robust/report.py)
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import pickle
 import time
-import tomllib
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from bogiemon.daemon.calibrate import calibrate_windows, fragment
-from bogiemon.daemon.config import BogiemonConfig, validate_config
+from bogiemon.daemon.calibrate import calibrate_windows
+from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.models import shipped_models
-from bogiemon.daemon.modelfit import TrainingRun, fit_models, write_models
-from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
-from bogiemon.daemon.service import monitor_settings
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
-
-if TYPE_CHECKING:
-    from bogiemon.simulator.evaluation import EvaluationData, JudgedRun
+from bogiemon.lab.modelfit import TrainingRun, fit_models, write_models
+from bogiemon.lab.robust.fleet import EvaluationData, EvaluationPlan, simulate_plan
+from bogiemon.lab.robust.judge import DaemonMethod, judge_runs, with_overrides
+from bogiemon.lab.robust.report import write_report
+from bogiemon.lab.robust.score import score_method
 
 Progress = Callable[[float], None]
 
 # The paper's method: its clearest indicators (METHOD.md: at full load 2 and 4, in tare only 3),
 # raw, one fixed threshold per indicator for every wagon, from the training fleet's healthy windows.
 PAPER_INDICATORS = {"full": ["i2", "i4"], "tare": ["i3"]}
-
-
-def with_fragment(config: BogiemonConfig, text: str) -> BogiemonConfig:
-    """The config with a calibration fragment included (a named load state replaces its set)."""
-    data = config.model_dump(mode="json")
-    frag = tomllib.loads(text)["decision"]
-    for load, per in frag.get("thresholds", {}).items():
-        data["decision"]["thresholds"][load] = per
-    for load, baseline in frag.get("fused", {}).items():
-        data["decision"]["fused"][load] = baseline
-    return validate_config(data, "calibrated config")
-
-
-def with_overrides(config: BogiemonConfig, decision: Mapping[str, Any]) -> BogiemonConfig:
-    data = config.model_dump(mode="json")
-    data["decision"].update(copy.deepcopy(dict(decision)))
-    return validate_config(data, "method config")
-
-
-@dataclass(frozen=True)
-class _Commissioned:
-    settings: MonitorSettings
-    true_load: bool  # judge each run in its true load state (the paper's method assumes it known)
-
-    def judge(self, runs: Sequence[Sequence[WindowIndicators]], true_load: str) -> list[JudgedRun]:
-        from bogiemon.simulator.evaluation import JudgedRun, Outcome
-
-        settings = replace(self.settings, load=true_load, load_model=None) if self.true_load else self.settings
-        judge = WindowJudge(settings)  # one wagon running on: its decision state carries over
-        out = []
-        for windows in runs:
-            events, loads, ratios, p_full = [], [], [], []
-            for w in windows:
-                judged = judge.judge(w)
-                loads.append(judged.load)
-                ratios.append(None if judged.judgement is None else judged.judgement.alarm_ratio)
-                p_full.append(judged.p_full)
-                events += [Outcome(e.kind.value, w.end_s, e.details) for e in judged.events]
-            out.append(JudgedRun(tuple(events), tuple(loads), tuple(ratios), tuple(p_full)))
-        return out
-
-
-@dataclass(frozen=True)
-class DaemonMethod:
-    """A detection method as the daemon runs it: a config, calibrated per wagon or not."""
-
-    name: str
-    description: str
-    config: BogiemonConfig
-    calibrated: bool
-    true_load: bool = False
-
-    def commission(self, calibration: Mapping[str, Sequence[WindowIndicators]]) -> _Commissioned:
-        config = self.config
-        if self.calibrated:
-            for load, windows in sorted(calibration.items()):
-                config = with_fragment(config, fragment(calibrate_windows(windows, config, load)))
-        return _Commissioned(monitor_settings(config), self.true_load)
 
 
 def training_runs(data: EvaluationData) -> list[TrainingRun]:
@@ -194,8 +130,6 @@ class EvaluateError(ValueError):
 def load_or_simulate(plan: Any, config: BogiemonConfig, data_file: str | Path | None, progress: Progress | None) -> EvaluationData:
     """The plan's simulated windows: from data_file when it holds this plan and settings, else simulated
     (and written there when a file is named)."""
-    from bogiemon.simulator.evaluation import simulate_plan
-
     settings, geometry = config.processing_settings(), config.bogie_geometry()
     path = Path(data_file) if data_file else None
     have = {}
@@ -234,10 +168,6 @@ def run_evaluation(
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Simulate (or load) the plan, optionally fit the shipped models, judge every method, write the report."""
-    from bogiemon.simulator.evaluation import EvaluationPlan, judge_runs
-    from bogiemon.simulator.robust_report import write_report
-    from bogiemon.simulator.robust_score import score_method
-
     started = time.perf_counter()
     plan = EvaluationPlan.quick() if quick else EvaluationPlan.default()
 
@@ -276,7 +206,7 @@ def report_sections() -> dict[str, list[str]]:
             "carried across stops and restarts), |mean|^2 at its alarm level confirms: a standing fault that any one "
             "window cannot tell from the healthy wagon's own scatter, once the wagon has met enough tracks and speeds.",
             "",
-            "Both levels are fixed before the evaluation by the rule in daemon/modelfit.py, on the training fleet only: "
+            "Both levels are fixed before the evaluation by the rule in lab/modelfit.py, on the training fleet only: "
             "the larger of 1.1 x the largest healthy value seen and an exponential tail's once-in-1000-hours level. The "
             "load state comes from the spectral shape of each window (a logistic regression on four band-power shares, "
             "config/load_model.toml); the diagnosis compares the confirming shift with the training fleet's fault "
@@ -289,7 +219,7 @@ def report_sections() -> dict[str, list[str]]:
             "config/fault_signatures.toml on the plan's training fleet (wagons disjoint from the evaluation's) before it "
             "evaluates; each file's header says what it was fitted on. They are the simulator's: a real fleet's first "
             "wagons should refit the spread and the levels from their own healthy running (the same code, "
-            "daemon/modelfit.py, on recorded windows).",
+            "lab/modelfit.py, on recorded windows).",
         ],
         "discussion": [
             "## Discussion",
@@ -307,7 +237,7 @@ def report_sections() -> dict[str, list[str]]:
             "(two hours instead of half an hour took the trend's largest healthy values on the training fleet from "
             "6.7 to 1.6 at full load and from 2.2 to 1.2 in tare) or a spread refitted on a real fleet lowers both levels further.",
             "- **False alarms.** The levels were set on the training fleet for about one false alarm per 1000 hours "
-            "(daemon/modelfit.py) and are not tuned to the evaluation: the count above is what that rule gives on ten "
+            "(lab/modelfit.py) and are not tuned to the evaluation: the count above is what that rule gives on ten "
             "other wagons. The trend's healthy level is set mostly by how well the commissioning caught the wagon's "
             "own center; a wagon commissioned on few tracks and speeds drifts further from it later.",
             "- **Front coils at full load.** Through the Lenoir link a softer front coil raises the damper's sliding "

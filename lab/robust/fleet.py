@@ -1,13 +1,11 @@
-"""The robustness evaluation (issue 8): a varied fleet of simulated wagons, commissioned and then run.
+"""The robustness evaluation's fleet and runs (issue 8): a varied fleet of simulated wagons, the
+plan of their commissioning, healthy, fault and sensor runs, and every run's windows.
 
     plan = EvaluationPlan.default()                    # or EvaluationPlan.quick()
     data = simulate_plan(plan, settings, geometry)     # every run's windows, by the detection core
-    report = evaluate(data, methods)                   # each detection method judged run by run
-    write_report(report, "docs/robust", command=...)
-
-The daemon's judgement is not imported here (the simulator never imports the daemon): each
-detection method is a `Method` handed in by the caller (bogiemon.daemon.evaluate builds the
-daemon's own), which commissions a wagon from its calibration windows and then judges runs.
+    judged = judge_runs(data, method)                  # lab/robust/judge.py: the daemon's own code
+    score = score_method(data, ...)                    # lab/robust/score.py
+    write_report(data, [score], "docs/robust", ...)    # lab/robust/report.py
 
 THE FLEET. Each wagon is drawn from its own seed: masses and inertias of carbody and bogie frames
 +/-10 %, the coil springs +/-5 % (the wagon's batch) and each corner's nest another +/-5 %, the
@@ -47,7 +45,7 @@ import time
 import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +53,7 @@ from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, Processin
 from bogiemon.simulator.params import default_parameter_set
 from bogiemon.simulator.scenario import Scenario, SpeedProfile
 from bogiemon.simulator.sensors import SensorModel
-from bogiemon.simulator.study import table4_cases
+from bogiemon.lab.study.plan import HEALTHY, table4_cases
 from bogiemon.simulator.suspension import CORNER_ORDER, Fault
 
 Progress = Callable[[float], None]
@@ -65,7 +63,6 @@ SPEED_MIN_KMH, SPEED_MAX_KMH = 50.0, 110.0
 SPEED_POINT_EVERY_S = 30.0
 SPEED_STEP_SD_KMH = 8.0
 DETECTION_HORIZON_S = 120.0  # "2 minutes of running" with the fault
-HEALTHY = "healthy"
 MIRROR: dict[Corner, Corner] = {
     Corner.LEADING_LEFT: Corner.TRAILING_RIGHT,
     Corner.TRAILING_RIGHT: Corner.LEADING_LEFT,
@@ -543,181 +540,4 @@ def simulate_plan(
         simulated_s=sum(r.duration_s for r in runs),
         elapsed_s=time.perf_counter() - started,
         reused_runs=len(runs) - len(todo),
-    )
-
-
-# --------------------------------------------------------------------------------------------
-# Judging: the detection methods are handed in (the daemon's live in bogiemon.daemon.evaluate)
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """One event of a judged run: its kind ("CONFIRMED", "SENSOR_FAULT", ...), the end of the
-    window that caused it (s from the run's start) and its details."""
-
-    kind: str
-    time_s: float
-    details: Mapping[str, Any]
-
-
-@dataclass(frozen=True)
-class JudgedRun:
-    events: tuple[Outcome, ...]
-    loads: tuple[str | None, ...]  # per window: the load state it was judged in (None: not judged)
-    # Per window: the judged value as a fraction of its alarm level (>= 1: alarm); None: not judged.
-    ratios: tuple[float | None, ...] = ()
-    p_full: tuple[float | None, ...] = ()  # per window: the estimated probability of full load (None: not estimated)
-
-
-class Commissioned(Protocol):
-    """A method set up for one wagon (after its commissioning, if it has one)."""
-
-    def judge(self, runs: Sequence[Sequence[WindowIndicators]], true_load: str) -> list[JudgedRun]:
-        """Judge consecutive runs of the wagon, the decision state carried from one to the next
-        (the windows restart at each run, as at a stop); one JudgedRun per run, times from its start."""
-        ...
-
-
-class Method(Protocol):
-    name: str
-    description: str
-
-    def commission(self, calibration: Mapping[str, Sequence[WindowIndicators]]) -> Commissioned:
-        """Set up for one wagon from the windows of its calibration runs, per load state."""
-        ...
-
-
-@dataclass(frozen=True)
-class RunResult:
-    """What one method made of one test run."""
-
-    run: RunSpec
-    track: str
-    reversed: bool
-    confirmed_s: float | None  # the first CONFIRMED after the onset (fault runs) or anywhere (others), s from the run's start
-    confirmed_before_onset: bool  # a fault run's lead-in confirmed (a false alarm)
-    diagnosis: Mapping[str, Any] | None
-    trigger: str | None  # of that CONFIRMED: "windows" or "trend"
-    sensor_problems: Mapping[str, tuple[str, ...]]  # every problem any SENSOR_FAULT named, per channel
-    suspension_events: int  # SUSPECTED and CONFIRMED events
-    confirmed_count: int
-    suspected_count: int
-    loads: tuple[str | None, ...]
-    ratios: tuple[float | None, ...]  # per window, as JudgedRun
-    p_full: tuple[float | None, ...]  # per window, as JudgedRun
-    window_ends_s: tuple[float, ...]  # per window, s from the run's start
-
-
-@dataclass(frozen=True)
-class SequenceResult:
-    """What one method made of one trend sequence: a fault that appears and stays while the wagon
-    runs on. Times are of running with the fault, across the sequence's runs."""
-
-    first: RunSpec
-    runs: int
-    fault_running_s: float  # how long the sequence ran with the fault
-    confirmed_after_s: float | None  # running time from the onset to the first CONFIRMED after it
-    confirmed_before_onset: bool
-    trigger: str | None
-    diagnosis: Mapping[str, Any] | None
-
-
-def sequences(data: EvaluationData, wagon: int) -> list[list[RunWindows]]:
-    """The wagon's test runs as the evaluation judges them: its healthy runs of each load in order
-    as one stretch of running, each trend sequence in order, each fault and sensor run alone."""
-    groups: dict[tuple[Any, ...], list[RunWindows]] = {}
-    for r in data.runs:
-        spec = r.run
-        if spec.wagon != wagon or spec.role not in ("healthy", "fault", "sensor", "trend"):
-            continue
-        if spec.role == "healthy":
-            key: tuple[Any, ...] = ("healthy", spec.load)
-        elif spec.role == "trend":
-            key = ("trend", spec.load, spec.key, spec.severity, spec.corner)
-        else:
-            key = ("alone", spec.name)
-        groups.setdefault(key, []).append(r)
-    return [sorted(g, key=lambda r: r.run.number) for g in groups.values()]
-
-
-@dataclass(frozen=True)
-class Judged:
-    runs: list[RunResult]  # the healthy, fault and sensor runs
-    sequences: list[SequenceResult]  # the trend sequences
-
-
-def judge_runs(data: EvaluationData, method: Method, progress: Progress | None = None) -> Judged:
-    """Commission `method` on each wagon's calibration runs, then judge every test run of it."""
-    runs: list[RunResult] = []
-    seqs: list[SequenceResult] = []
-    total = sum(r.run.role in ("healthy", "fault", "sensor", "trend") for r in data.runs) or 1
-    done = 0
-    for w in range(len(data.fleet)):
-        calibration: dict[str, list[WindowIndicators]] = {}
-        for r in data.select(role="calibration", wagon=w):
-            calibration.setdefault(r.run.load, []).extend(r.windows)
-        commissioned = method.commission(calibration)
-        for group in sequences(data, w):
-            judged = commissioned.judge([r.windows for r in group], group[0].run.load)
-            if group[0].run.role == "trend":
-                seqs.append(_sequence_result(group, judged))
-            else:
-                runs += [_result(r, j) for r, j in zip(group, judged, strict=True)]
-            done += len(group)
-            if progress is not None:
-                progress(done / total)
-    return Judged(runs, seqs)
-
-
-def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -> SequenceResult:
-    onset = group[0].run.onset_s
-    offset = 0.0  # running time at the start of each run, from the sequence's start
-    first_after: tuple[float, Outcome] | None = None
-    before = False
-    for r, j in zip(group, judged, strict=True):
-        for e in j.events:
-            if e.kind != "CONFIRMED":
-                continue
-            t = offset + e.time_s
-            if t <= onset:
-                before = True
-            elif first_after is None:
-                first_after = (t - onset, e)
-        offset += r.run.duration_s
-    return SequenceResult(
-        first=group[0].run,
-        runs=len(group),
-        fault_running_s=offset - onset,
-        confirmed_after_s=first_after[0] if first_after else None,
-        confirmed_before_onset=before,
-        trigger=first_after[1].details.get("trigger") if first_after else None,
-        diagnosis=first_after[1].details.get("diagnosis") if first_after else None,
-    )
-
-
-def _result(r: RunWindows, judged: JudgedRun) -> RunResult:
-    onset = r.run.onset_s if r.run.key != HEALTHY else 0.0
-    confirmed = [e for e in judged.events if e.kind == "CONFIRMED"]
-    after = [e for e in confirmed if e.time_s > onset]
-    problems: dict[str, set[str]] = {}
-    for e in judged.events:
-        if e.kind == "SENSOR_FAULT":
-            for channel, found in e.details.get("problems", {}).items():
-                problems.setdefault(channel, set()).update(found)
-    return RunResult(
-        run=r.run,
-        track=r.conditions.track,
-        reversed=r.conditions.reversed,
-        confirmed_s=after[0].time_s if after else None,
-        confirmed_before_onset=any(e.time_s <= onset for e in confirmed) if r.run.key != HEALTHY else False,
-        diagnosis=after[0].details.get("diagnosis") if after else None,
-        trigger=after[0].details.get("trigger") if after else None,
-        sensor_problems={c: tuple(sorted(p)) for c, p in problems.items()},
-        suspension_events=sum(e.kind in ("SUSPECTED", "CONFIRMED") for e in judged.events),
-        confirmed_count=len(confirmed),
-        suspected_count=sum(e.kind == "SUSPECTED" for e in judged.events),
-        loads=judged.loads,
-        ratios=judged.ratios,
-        p_full=judged.p_full,
-        window_ends_s=tuple(w.end_s for w in r.windows),
     )

@@ -1,6 +1,6 @@
 """Scoring the robustness evaluation: what each detection method made of the evaluation fleet.
 
-    results = judge_runs(data, method)                 # simulator/evaluation.py
+    results = judge_runs(data, method)                 # lab/robust/judge.py
     score = score_method(data, method.name, method.description, results)
 
 Every figure of docs/robust comes from here, by rules fixed before the results were looked at:
@@ -28,7 +28,8 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from bogiemon.simulator.evaluation import DETECTION_HORIZON_S, EXPECTED_PROBLEM, EvaluationData, RunResult, SequenceResult
+from bogiemon.lab.robust.fleet import DETECTION_HORIZON_S, EXPECTED_PROBLEM, EvaluationData
+from bogiemon.lab.robust.judge import RunResult, SequenceResult
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import pytest
 
 from bogiemon.daemon.decision import FUSED_SCORE, FUSED_TREND, Decider, DecisionSettings, DecisionState, FusedSettings, Level, Mode
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.modelfit import trend_runs
+from bogiemon.lab.modelfit import trend_runs
 from bogiemon.daemon.models import Baseline, Levels, Signature, SignatureSet
 from bogiemon.detection import BogieGeometry, WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats

@@ -8,38 +8,15 @@ import pytest
 from bogiemon.daemon.config import parse_config
 from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.monitor import Monitor
-from bogiemon.daemon.service import monitor_settings
 from bogiemon.daemon.sinks import EventSink, MemorySink
 from bogiemon.daemon.store import EventStore
-from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel
+from tests.daemon.synthetic import as_blocks, bogie_accel, short_windows_config
 
-CONFIG = parse_config(
-    f"""
-[processing]
-fs_hz = {FS_HZ}
-window_s = 6.0
-hop_s = 2.0
-max_lag_s = 1.0
-[health]
-# White-noise modes have none of a bogie frame's structure: no structure checks on them.
-structure_checks = false
-[decision]
-# These tests exercise the machinery with short windows: the per-indicator method, fixed load.
-method = "thresholds"
-load = "full"
-confirm_k = 2
-confirm_n = 3
-clear_after_windows = 2
-[decision.thresholds.full.i4_norm]
-warning = 0.2
-alarm = 0.3
-""",
-    "test",
-)
+CONFIG = parse_config(short_windows_config(clear_after_windows=2), "test")
 
 
 def make_monitor(tmp_path: Path, sinks=()) -> Monitor:
-    return Monitor(monitor_settings(CONFIG), EventStore(tmp_path), list(sinks))
+    return Monitor(CONFIG.monitor_settings(), EventStore(tmp_path), list(sinks))
 
 
 def feed_all(monitor: Monitor, blocks) -> list:
@@ -117,7 +94,7 @@ def test_alarm_state_survives_a_restart(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("load", ["full", "tare"])
 def test_the_load_state_picks_its_thresholds(tmp_path: Path, load: str) -> None:
-    monitor = Monitor(monitor_settings(CONFIG, load=load), EventStore(tmp_path))
+    monitor = Monitor(CONFIG.monitor_settings(load=load), EventStore(tmp_path))
     feed_all(monitor, as_blocks(bogie_accel(10, seed=9)))
     assert set(monitor.latest.judgement.values) == set(CONFIG.decision.thresholds[load])
     assert CONFIG.decision.thresholds["full"] != CONFIG.decision.thresholds["tare"]

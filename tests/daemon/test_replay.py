@@ -11,34 +11,14 @@ import pytest
 from bogiemon.daemon.config import parse_config
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.replay import replay
-from bogiemon.daemon.service import monitor_settings
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.candb import load_layout
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import write_csv_recording
-from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel
+from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config
 
-CONFIG_TEXT = f"""
-[processing]
-fs_hz = {FS_HZ}
-window_s = 6.0
-hop_s = 2.0
-max_lag_s = 1.0
-[health]
-# White-noise modes have none of a bogie frame's structure: no structure checks on them.
-structure_checks = false
-[decision]
-# These tests exercise the machinery with short windows: the per-indicator method, fixed load.
-method = "thresholds"
-load = "full"
-confirm_k = 2
-confirm_n = 3
-clear_after_windows = 2
-[decision.thresholds.full.i4_norm]
-warning = 0.2
-alarm = 0.3
-"""
+CONFIG_TEXT = short_windows_config(clear_after_windows=2)
 CONFIG = parse_config(CONFIG_TEXT, "test")
 BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
 
@@ -58,7 +38,7 @@ def test_replay_gives_what_the_monitor_gives_fed_directly(tmp_path: Path, faulty
     write_csv_recording(path, t, faulty_then_healthy)
     sink = MemorySink()
     summary = replay([path], CONFIG, sinks=[sink])
-    direct = Monitor(monitor_settings(CONFIG), EventStore(tmp_path / "direct"))
+    direct = Monitor(CONFIG.monitor_settings(), EventStore(tmp_path / "direct"))
     direct_events = []
     for block in as_blocks(np.round(faulty_then_healthy, 6), start_s=1.7e9):
         direct_events += direct.feed(block)

@@ -14,7 +14,6 @@ import pytest
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.monitor import Monitor
-from bogiemon.daemon.service import monitor_settings
 from bogiemon.daemon.store import EventStore
 from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.drivers.base import Block
@@ -31,7 +30,7 @@ def healthy_run() -> np.ndarray:
 
 
 def feed(accel: np.ndarray, tmp_path: Path) -> tuple[Monitor, list]:
-    monitor = Monitor(monitor_settings(BogiemonConfig()), EventStore(tmp_path))
+    monitor = Monitor(BogiemonConfig().monitor_settings(), EventStore(tmp_path))
     events = []
     for i in range(0, accel.shape[0], 250):
         events += monitor.feed(Block(start_s=1.7e9 + i / FS_HZ, fs_hz=FS_HZ, accel_mps2=accel[i : i + 250]))
@@ -94,7 +93,7 @@ def test_healthy_noiseless_quantised_sensors_at_walking_pace_are_not_stuck() -> 
     lsb_mps2 = 2 * 156.9 / 2**16
     run = simulate(Scenario(load="tare", speed=SpeedProfile.constant(10.0), duration_s=130.0, seed=3,
                             sensor=SensorModel(quantum_mps2=lsb_mps2))).accel_mps2  # fmt: skip
-    settings = monitor_settings(BogiemonConfig())
+    settings = BogiemonConfig().monitor_settings()
     stats = channel_stats_reference(run[-int(120 * FS_HZ) :], FS_HZ)
     assert max(stats.longest_run_s) < settings.health.stuck_run_s / 4
 
@@ -102,7 +101,7 @@ def test_healthy_noiseless_quantised_sensors_at_walking_pace_are_not_stuck() -> 
 def test_the_damaged_runs_would_have_looked_like_faults_if_judged(healthy_run, tmp_path) -> None:
     """The point of the health check: the frozen channel's coupling exceeds the alarm level."""
     monitor, _ = feed(flat(healthy_run), tmp_path)
-    decision = monitor_settings(BogiemonConfig()).decision
+    decision = BogiemonConfig().monitor_settings().decision
     thresholds = decision.thresholds["full"]
     window = monitor.latest.window
     assert any(abs(getattr(window, name) - t.center) >= t.alarm for name, t in thresholds.items())

@@ -11,25 +11,22 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.evaluate import EvaluateError, daemon_methods, load_or_simulate, report_sections
 from bogiemon.detection import Corner
-from bogiemon.simulator.evaluation import (
+from bogiemon.lab.robust.evaluate import EvaluateError, daemon_methods, load_or_simulate, report_sections
+from bogiemon.lab.robust.fleet import (
     HEALTHY,
     SENSOR_DAMAGE,
     EvaluationPlan,
-    JudgedRun,
-    Outcome,
     RunSpec,
     damage_sensors,
     draw_conditions,
-    judge_runs,
     make_wagon,
-    sequences,
     simulate_plan,
 )
-from bogiemon.simulator.evaluation import _sequence_result as sequence_result
-from bogiemon.simulator.robust_report import write_report
-from bogiemon.simulator.robust_score import score_method
+from bogiemon.lab.robust.judge import JudgedRun, Outcome, judge_runs, sequences
+from bogiemon.lab.robust.judge import _sequence_result as sequence_result
+from bogiemon.lab.robust.report import write_report
+from bogiemon.lab.robust.score import score_method
 
 CONFIG = load_config(None)
 
@@ -85,7 +82,7 @@ def judged(events: list[tuple[str, float, dict]]) -> JudgedRun:
 
 
 def test_a_sequence_counts_running_time_from_the_onset_across_its_runs() -> None:
-    from bogiemon.simulator.evaluation import Conditions, RunWindows, SpeedProfile
+    from bogiemon.lab.robust.fleet import Conditions, RunWindows, SpeedProfile
 
     runs = [
         RunWindows(RunSpec("trend", 0, "full", "type_b.full", 0.5, Corner.LEADING_LEFT, k, 450.0, 150.0 if k == 0 else 0.0),

@@ -11,11 +11,10 @@ import pytest
 
 from bogiemon.daemon.calibrate import calibrate_windows, fragment
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.evaluate import with_fragment
 from bogiemon.daemon.monitor import WindowJudge
-from bogiemon.daemon.service import monitor_settings
 from bogiemon.detection import Corner, IndicatorStream
-from bogiemon.simulator.evaluation import EXPECTED_PROBLEM, HEALTHY, SENSOR_DAMAGE, RunSpec, damage_sensors, make_wagon, scenario_for
+from bogiemon.lab.robust.fleet import EXPECTED_PROBLEM, HEALTHY, SENSOR_DAMAGE, RunSpec, damage_sensors, make_wagon, scenario_for
+from bogiemon.lab.robust.judge import with_fragment
 from bogiemon.simulator.run import simulate_batch
 
 CONFIG = load_config(None)
@@ -64,7 +63,7 @@ def commissioned(fleet_runs) -> WindowJudge:  # type: ignore[no-untyped-def]
 
 
 def judge(config, accel) -> tuple[list, list]:  # type: ignore[no-untyped-def]
-    judge = WindowJudge(monitor_settings(config))
+    judge = WindowJudge(config.monitor_settings())
     events, loads = [], []
     for w in windows(accel):
         judged = judge.judge(w)

@@ -1,4 +1,6 @@
-"""The detection study: the quick plan's headline, the rule's parts against direct references, the report, the command."""
+"""The detection study: the quick plan's headline, the rule's parts against direct references, the report, the command.
+
+The thresholds and the confirmation are the daemon's own rules (tests/daemon/test_rules.py)."""
 
 from __future__ import annotations
 
@@ -7,30 +9,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from scipy import stats
 
-from bogiemon.daemon.calibrate import calibrate
 from bogiemon.daemon.cli.main import main
-from bogiemon.daemon.config import load_config, parse_config
-from bogiemon.daemon.decision import Decider, DecisionSettings, Threshold
-from bogiemon.daemon.events import EventKind
-from bogiemon.detection import IndicatorStream, WindowIndicators
-from bogiemon.detection.channel_stats import ChannelStats
-from bogiemon.drivers.recording import read_csv_recording
-from bogiemon.simulator import Scenario, SensorModel, simulate_batch, write_recording
-from bogiemon.simulator.study import (
+from bogiemon.daemon.config import load_config
+from bogiemon.lab.study import (
     INDICATORS,
     RULE_MAX_FALSE_ALARM,
     RULE_MIN_SHARE,
     Reference,
     StudyPlan,
     StudyResult,
-    calibrate_thresholds,
     check_thresholds,
     decision_evidence,
-    first_confirmation,
     identify,
     paper_table4,
     roc_auc,
@@ -108,53 +101,6 @@ def test_roc_auc_is_the_mann_whitney_statistic(faulty: list[int], healthy: list[
     f, h = np.array(faulty, dtype=float), np.array(healthy, dtype=float)
     u = stats.mannwhitneyu(f, h, alternative="two-sided").statistic
     assert roc_auc(f, h) == pytest.approx(u / (len(f) * len(h)), abs=1e-12)
-
-
-QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
-
-
-def _window(i4_norm: float, t: float) -> WindowIndicators:
-    return WindowIndicators(
-        start_s=t, end_s=t + 60, i1=0, i2=0, i3=0, i4=0, i1_norm=0, i2_norm=0, i3_norm=0, i4_norm=i4_norm,
-        rms_mps2=(1.0, 1.0, 1.0), rms_bounce_mps2=1, rms_pitch_radps2=1, rms_roll_radps2=1, channels=QUIET,
-    )  # fmt: skip
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.lists(st.booleans(), min_size=1, max_size=40), st.integers(1, 6), st.integers(0, 4))
-def test_first_confirmation_is_where_the_daemons_decider_confirms(alarms: list[bool], k: int, extra: int) -> None:
-    n = k + extra
-    # The daemon's history is also cleared after clear_after_windows clean windows; with
-    # clear_after_windows >= n (the defaults: 6 and 5) that never drops an alarm still in the last n.
-    decision = DecisionSettings({"full": {"i4_norm": Threshold(warning=0.5, alarm=0.5)}}, k, n, clear_after_windows=n)
-    decider = Decider(decision, "test")
-    confirmed_at = None
-    for i, alarm in enumerate(alarms):
-        _, events = decider.update(_window(1.0 if alarm else 0.0, 10.0 * i), "full")
-        if confirmed_at is None and any(e.kind is EventKind.CONFIRMED for e in events):
-            confirmed_at = i
-    assert first_confirmation(np.array(alarms), k, n) == confirmed_at
-
-
-def test_calibrate_thresholds_is_the_daemons_calibration_rule(tmp_path: Path) -> None:
-    config = parse_config("[processing]\nwindow_s = 60.0\n", "test")
-    runs = simulate_batch([Scenario(duration_s=150.0, seed=s, sensor=SensorModel(noise_mps2=0.01)) for s in range(3)])
-    paths = []
-    for i, run in enumerate(runs):
-        paths.append(tmp_path / f"healthy{i}.csv")
-        write_recording(run, paths[-1])
-    daemon = calibrate(paths, config, "full", list(INDICATORS))
-    windows = []
-    for path in paths:
-        recording = read_csv_recording(path)
-        stream = IndicatorStream(config.processing_settings(fs_hz=recording.fs_hz), config.bogie_geometry())
-        windows += stream.process(recording.accel_mps2)
-    assert daemon.n_judged == len(windows) >= 30
-    for found in daemon.indicators:
-        ours = calibrate_thresholds(np.array([getattr(w, found.name) for w in windows]))
-        assert (ours.center, ours.warning, ours.alarm) == pytest.approx(
-            (found.threshold.center, found.threshold.warning, found.threshold.alarm), rel=1e-12, abs=1e-300
-        )
 
 
 def test_the_report_has_table4_for_every_case_the_figures_and_the_defaults(quick: StudyResult, tmp_path: Path) -> None:
