@@ -1,8 +1,10 @@
 """Reference implementation of the indicators: whole signals at once, one window at a time.
 
-Direct and slow on purpose: it filters each signal in one call, transforms with the textbook
-formulas, and correlates every window with one dot product per lag. The streaming core is checked
-against it (tests/detection) and the naive benchmark baseline is built on the same window loop.
+Direct and slow on purpose: it filters each signal in one call (scipy.signal.sosfilt), transforms
+with the textbook formulas, correlates every window with one dot product per lag and takes band
+spectra from scipy.signal.csd. The streaming core is checked against it (tests/detection) and the
+naive benchmark baseline is built on the same window loop. Nothing the daemon runs imports it
+(scipy.signal would cost the gateway scipy.stats too).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.detection.conditioning import butter_sos
 from bogiemon.detection.indicators import ProcessingSettings, WindowIndicators
 from bogiemon.detection.kinematics import BogieGeometry
-from bogiemon.detection.spectra import spectra_reference
+from bogiemon.detection.spectra import BANDS_HZ, WindowSpectra
 from bogiemon.detection.xcorr import xcorr_direct
 
 
@@ -30,6 +32,30 @@ def condition_reference(
     lp = butter_sos(settings.lowpass_order, settings.lowpass_hz, settings.fs_hz, "lowpass")
     low = signal.sosfilt(lp, high, axis=0)
     return high, low
+
+
+def spectra_reference(
+    window: NDArray[np.float64], hop_n: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ
+) -> WindowSpectra:
+    """The band cross-spectral matrix of one (n, 3) window of conditioned samples, with scipy.signal.csd.
+
+    Welch's method with non-overlapping Hann segments of hop_n samples and no detrending, as the
+    stream computes it; the density times the bin width, summed over each band's bins.
+    """
+    n_bands = len(bands_hz) - 1
+    matrix = np.zeros((n_bands, 3, 3), dtype=np.complex128)
+    for i in range(3):
+        for j in range(3):
+            # csd(x, y) = conj(X) Y: S_ij = X_i conj(X_j) is csd(a_j, a_i).
+            freqs, density = signal.csd(
+                window[:, j], window[:, i], fs=fs_hz, window="hann", nperseg=hop_n, noverlap=0,
+                detrend=False, scaling="density", average="mean",
+            )  # fmt: skip
+            df_hz = freqs[1] - freqs[0]
+            for b in range(n_bands):
+                inside = (freqs >= bands_hz[b]) & (freqs < bands_hz[b + 1])
+                matrix[b, i, j] = density[inside].sum() * df_hz
+    return WindowSpectra.from_matrix(matrix, bands_hz)
 
 
 def modal_reference(accel: NDArray[np.float64], geometry: BogieGeometry) -> NDArray[np.float64]:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import fft, signal
+from scipy import fft
 
 from bogiemon.detection.kinematics import BogieGeometry
 
@@ -92,6 +92,15 @@ def band_bins(n_fft: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ) 
     return index.astype(np.intp)
 
 
+def hann_periodic(n: int) -> NDArray[np.float64]:
+    """The periodic Hann window of n >= 2 samples, 0.5 - 0.5 cos(2 pi k / n).
+
+    What scipy.signal.get_window("hann", n) returns: periodic rather than symmetric, the window
+    for spectral analysis (its n-point DFT has only three non-zero bins).
+    """
+    return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
+
+
 class WindowedSpectra:
     """Feed whole hops of (hop_n, 3) conditioned samples; after a full window, each hop returns it."""
 
@@ -101,7 +110,7 @@ class WindowedSpectra:
         self.hops_per_window = hops_per_window
         self.hop_n = hop_n
         self.bands_hz = tuple(float(b) for b in bands_hz)
-        self._taper = signal.get_window("hann", hop_n)
+        self._taper = hann_periodic(hop_n)
         self._scale = 2.0 / (hop_n * float(np.sum(self._taper**2)))
         bins = band_bins(hop_n, fs_hz, self.bands_hz)
         n_bands = len(self.bands_hz) - 1
@@ -129,30 +138,6 @@ class WindowedSpectra:
         if self._n_hops < self.hops_per_window:
             return None
         return WindowSpectra.from_matrix(self._hops.mean(axis=0), self.bands_hz)
-
-
-def spectra_reference(
-    window: NDArray[np.float64], hop_n: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ
-) -> WindowSpectra:
-    """The same matrix of one (n, 3) window of conditioned samples, with scipy.signal.csd.
-
-    Welch's method with non-overlapping Hann segments of hop_n samples and no detrending, as the
-    stream computes it; the density times the bin width, summed over each band's bins.
-    """
-    n_bands = len(bands_hz) - 1
-    matrix = np.zeros((n_bands, 3, 3), dtype=np.complex128)
-    for i in range(3):
-        for j in range(3):
-            # csd(x, y) = conj(X) Y: S_ij = X_i conj(X_j) is csd(a_j, a_i).
-            freqs, density = signal.csd(
-                window[:, j], window[:, i], fs=fs_hz, window="hann", nperseg=hop_n, noverlap=0,
-                detrend=False, scaling="density", average="mean",
-            )  # fmt: skip
-            df_hz = freqs[1] - freqs[0]
-            for b in range(n_bands):
-                inside = (freqs >= bands_hz[b]) & (freqs < bands_hz[b + 1])
-                matrix[b, i, j] = density[inside].sum() * df_hz
-    return WindowSpectra.from_matrix(matrix, bands_hz)
 
 
 # --------------------------------------------------------------------------------------------

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import signal
 
-from bogiemon.detection.spectra import BANDS_HZ, WindowedSpectra, WindowSpectra, band_bins, coherency, spectra_reference
+from bogiemon.detection.reference import spectra_reference
+from bogiemon.detection.spectra import BANDS_HZ, WindowedSpectra, WindowSpectra, band_bins, coherency, hann_periodic
 
 FS_HZ = 500.0
 
@@ -79,3 +81,9 @@ def test_bins_outside_the_bands_belong_to_none() -> None:
     inside = (freqs >= BANDS_HZ[0]) & (freqs < BANDS_HZ[-1])
     assert np.all(np.asarray(BANDS_HZ)[bins[inside]] <= freqs[inside])
     assert np.all(freqs[inside] < np.asarray(BANDS_HZ)[bins[inside] + 1])
+
+
+@settings(max_examples=50, deadline=None)
+@given(n=st.integers(2, 20_000))
+def test_the_taper_is_scipys_periodic_hann_window(n: int) -> None:
+    np.testing.assert_allclose(hann_periodic(n), signal.get_window("hann", n), rtol=0, atol=2e-15)
