@@ -29,7 +29,7 @@ from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSetting
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.store import EventStore  # noqa: E402
-from tests.daemon.mqtt_broker import Broker, ensure_mosquitto  # noqa: E402
+from tests.daemon.delivery.mqtt_broker import Broker, ensure_mosquitto  # noqa: E402
 
 WAGON = "bench-wagon"
 

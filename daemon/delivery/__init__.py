@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bogiemon.daemon.can_alarms import CanAlarmSink, Heartbeat, load_alarm_codecs
+from bogiemon.daemon.delivery.can_alarms import CanAlarmSink, Heartbeat, load_alarm_codecs
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings

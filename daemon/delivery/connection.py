@@ -1,9 +1,9 @@
-"""Connections to an MQTT broker, shared by the publisher and `bogiemon listen`.
+"""Connections to an MQTT broker, shared by the publisher and `bogiemon listen`, whatever the transport.
 
-A fresh paho client per connection attempt (MQTT 5): TLS from a CA file and an optional client
-certificate, credentials read from files at each attempt (so a rotated password needs no
-restart), never from the command line, and never logged. Errors are turned into one line that
-names the cause and the file or setting to look at.
+The settings of a connection; TLS from a CA file and an optional client certificate, credentials
+read from files at each attempt (so a rotated password needs no restart), never from the command
+line, and never logged (paho_transport.py uses them). Errors are turned into one line that names
+the cause and the file or setting to look at.
 """
 
 from __future__ import annotations
@@ -11,12 +11,10 @@ from __future__ import annotations
 import socket
 import ssl
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import paho.mqtt.client as mqtt
-from paho.mqtt.enums import CallbackAPIVersion
-from paho.mqtt.packettypes import PacketTypes
-from paho.mqtt.properties import Properties
-from paho.mqtt.reasoncodes import ReasonCode
+if TYPE_CHECKING:  # transport.py imports this module for ConnectionSettings
+    from bogiemon.daemon.delivery.transport import Reason
 
 
 class CredentialsError(Exception):
@@ -86,32 +84,6 @@ def _ssl_reason(exc: BaseException) -> str:
     return getattr(exc, "reason", None) or getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
 
 
-def new_client(settings: ConnectionSettings, client_id: str, will: tuple[str, str] | None = None) -> mqtt.Client:
-    """A configured, unconnected client. Raises CredentialsError for an unusable file."""
-    client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
-    client.connect_timeout = settings.connect_timeout_s
-    # The caller bounds what is in flight; paho must neither queue nor hold anything back.
-    client.max_inflight_messages_set(0)
-    client.suppress_exceptions = False
-    if settings.tls:
-        client.tls_set_context(tls_context(settings))
-    if settings.username_file:
-        username = read_secret(settings.username_file, "MQTT username file")
-        password = read_secret(settings.password_file, "MQTT password file") if settings.password_file else None
-        client.username_pw_set(username, password)
-    if will is not None:
-        topic, payload = will
-        client.will_set(topic, payload, qos=1, retain=True)
-    return client
-
-
-def session_properties(expiry_s: int) -> Properties:
-    """CONNECT properties asking the broker to keep the session (subscriptions, queued messages)."""
-    properties = Properties(PacketTypes.CONNECT)
-    properties.SessionExpiryInterval = expiry_s
-    return properties
-
-
 @dataclass(frozen=True)
 class LinkProblem:
     """Why a connection failed or ended: kind is what a log says once ("tls", "credentials", ...)."""
@@ -139,7 +111,7 @@ def describe_connect_error(exc: OSError, settings: ConnectionSettings) -> LinkPr
     return LinkProblem("unreachable", f"cannot connect to {settings.address}: {exc.strerror or exc}")
 
 
-def describe_closed(settings: ConnectionSettings, connected: bool, reason: ReasonCode, socket_error: str | None) -> LinkProblem:
+def describe_closed(settings: ConnectionSettings, connected: bool, reason: Reason, socket_error: str | None) -> LinkProblem:
     """A connection that ended without a refusal; socket_error is paho's last error line, if any."""
     detail = f" ({socket_error})" if socket_error else ("" if reason.value == 0 else f": {reason}")
     if connected:
@@ -151,13 +123,13 @@ def describe_closed(settings: ConnectionSettings, connected: bool, reason: Reaso
     return LinkProblem("closed", "connection closed before CONNACK" + detail)
 
 
-def describe_refusal(reason: ReasonCode, credentials: str = "mqtt.username_file and mqtt.password_file") -> LinkProblem:
+def describe_refusal(reason: Reason, credentials: str = "mqtt.username_file and mqtt.password_file") -> LinkProblem:
     """A CONNACK that refuses the connection; credentials names where they come from."""
     if is_auth_refusal(reason):
         return LinkProblem("credentials", f"the broker refused the credentials ({reason}): check {credentials}")
     return LinkProblem("refused", f"the broker refused the connection ({reason})")
 
 
-def is_auth_refusal(reason: ReasonCode) -> bool:
+def is_auth_refusal(reason: Reason) -> bool:
     # Bad user name or password, not authorized, bad authentication method.
     return reason.value in (0x86, 0x87, 0x8C)

@@ -5,7 +5,8 @@ arrive twice (after a crash of the daemon, or a PUBACK lost with the connection)
 keeps the first copy of each event_id and counts the rest. With a store file the kept events are
 committed to SQLite before the broker gets the PUBACK, and the deduplication survives restarts.
 The broker keeps this listener's session (a fixed client id, session expiry), so events published
-while it is away are queued for it.
+while it is away are queued for it. The client comes from a transport factory (transport.py):
+paho by default, memory_transport in tests.
 """
 
 from __future__ import annotations
@@ -16,25 +17,17 @@ import sqlite3
 import ssl
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-import paho.mqtt.client as mqtt
-from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import ValidationError
 
-from bogiemon.daemon.delivery.connection import (
-    ConnectionSettings,
-    describe_connect_error,
-    describe_refusal,
-    is_auth_refusal,
-    new_client,
-    session_properties,
-)
-from bogiemon.daemon.delivery.publisher import Backoff
+from bogiemon.daemon.delivery.connection import ConnectionSettings, describe_connect_error, describe_refusal, is_auth_refusal
+from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.delivery.schema import EventMessage, StatusMessage, parse_topic, subscriptions
+from bogiemon.daemon.delivery.transport import MqttTransport, Reason, TransportEvents, TransportFactory
+from bogiemon.drivers.reconnect import Backoff
 
 SESSION_EXPIRY_S = 86_400  # the broker queues events for a listener that is away up to a day
 IO_WAIT_S = 0.1
@@ -105,6 +98,7 @@ class Listener:
         on_link: Callable[[str], None] | None = None,
         backoff_min_s: float = 0.5,
         backoff_max_s: float = 10.0,
+        transport_factory: TransportFactory = paho_transport,
     ) -> None:
         self.connection = connection
         self.prefix = prefix
@@ -119,7 +113,8 @@ class Listener:
         self._events: list[EventMessage] = []
         self._seen: set[str] = set(store.event_ids()) if store is not None else set()
         self._lock = threading.Lock()
-        self._backoff = Backoff(backoff_min_s, backoff_max_s, random.Random(client_id))
+        self._transport_factory = transport_factory
+        self._backoff = Backoff(backoff_min_s, backoff_max_s, rng=random.Random(client_id))
         self._last_link: str | None = None
         self.subscribed = threading.Event()  # set once the subscriptions are acknowledged
 
@@ -138,15 +133,11 @@ class Listener:
         while not stop.is_set():
             if max_events is not None and len(self._events) >= max_events:
                 return
-            client = new_client(self.connection, self.client_id)
-            outcome: dict[str, Any] = {}
-            self._bind(client, outcome)
+            transport = self._transport_factory(self.connection, self.client_id, None)
+            outcome = _Outcome()
             try:
                 # clean_start False: the broker keeps the session, and what it queued while we were away.
-                client.connect(
-                    self.connection.host, self.connection.port, keepalive=self.connection.keepalive_s,
-                    clean_start=False, properties=session_properties(SESSION_EXPIRY_S),
-                )  # fmt: skip
+                transport.connect(_ListenerEvents(self, transport, outcome), clean_start=False, session_expiry_s=SESSION_EXPIRY_S)
             except OSError as exc:
                 problem = describe_connect_error(exc, self.connection)
                 if isinstance(exc, ssl.SSLCertVerificationError):  # retrying cannot help
@@ -154,61 +145,31 @@ class Listener:
                 self._wait(stop, str(problem))
                 continue
             stop_now = False
-            while "end" not in outcome:
+            while outcome.end is None:
                 if stop.is_set() or (max_events is not None and len(self._events) >= max_events):
                     stop_now = True
                     break
-                rc = client.loop(timeout=IO_WAIT_S)
-                if rc != mqtt.MQTT_ERR_SUCCESS and "end" not in outcome:
-                    outcome["end"] = f"connection lost: {mqtt.error_string(rc)}"
-            try:
-                client.disconnect()
-            except Exception:  # noqa: BLE001 - the socket may already be gone
-                pass
+                error = transport.loop(IO_WAIT_S)
+                if error is not None and outcome.end is None:
+                    outcome.end = f"connection lost: {error}"
+            transport.disconnect()
             if stop_now:
                 return
-            if outcome.get("auth_refused"):
-                raise ListenError(outcome["end"])
-            self._wait(stop, outcome["end"])
+            assert outcome.end is not None
+            if outcome.auth_refused:
+                raise ListenError(outcome.end)
+            self._wait(stop, outcome.end)
 
     def _wait(self, stop: threading.Event, reason: str) -> None:
         self.subscribed.clear()
         self._link(f"failing: {reason}")
-        stop.wait(self._backoff.next_delay_s())
+        stop.wait(self._backoff.failed())
 
     def _link(self, text: str) -> None:
         if text != self._last_link:
             self._last_link = text
             if self.on_link is not None:
                 self.on_link(text)
-
-    def _bind(self, client: mqtt.Client, outcome: dict[str, Any]) -> None:
-        def on_connect(c: mqtt.Client, _u: Any, _flags: Any, reason: ReasonCode, _p: Any) -> None:
-            if reason.is_failure:
-                outcome["auth_refused"] = is_auth_refusal(reason)
-                outcome["end"] = str(describe_refusal(reason, "--username-file and --password-file"))
-                return
-            self._backoff.reset()
-            c.subscribe([(topic, 1) for topic in subscriptions(self.prefix)])
-
-        def on_subscribe(_c: mqtt.Client, _u: Any, _mid: int, reasons: list[ReasonCode], _p: Any) -> None:
-            if any(r.is_failure for r in reasons):
-                outcome["auth_refused"] = True
-                outcome["end"] = f"the broker refused the subscriptions to {self.prefix}/+/...: ({', '.join(map(str, reasons))})"
-            else:
-                self._link(f"connected to {self.connection.address}, subscribed to {self.prefix}/+/events, status, state")
-                self.subscribed.set()
-
-        def on_disconnect(_c: mqtt.Client, _u: Any, _flags: Any, reason: ReasonCode, _p: Any) -> None:
-            outcome.setdefault("end", "connection lost" + ("" if reason.value == 0 else f": {reason}"))
-
-        def on_message(_c: mqtt.Client, _u: Any, message: mqtt.MQTTMessage) -> None:
-            self._handle(message.topic, message.payload)  # returns before paho sends the PUBACK
-
-        client.on_connect = on_connect
-        client.on_subscribe = on_subscribe
-        client.on_disconnect = on_disconnect
-        client.on_message = on_message
 
     def _handle(self, topic: str, payload: bytes) -> None:
         where = parse_topic(self.prefix, topic)
@@ -247,3 +208,46 @@ class Listener:
             self._seen.add(event.event_id)
             self._events.append(event)
             return True
+
+
+@dataclass
+class _Outcome:
+    """How one connection ended, as its events tell."""
+
+    end: str | None = None  # why, once it has ended
+    auth_refused: bool = False  # the credentials or the subscriptions refused: retrying cannot help
+
+
+class _ListenerEvents(TransportEvents):
+    """One connection's events, in the listener's thread."""
+
+    def __init__(self, listener: Listener, transport: MqttTransport, outcome: _Outcome) -> None:
+        self._listener = listener
+        self._transport = transport
+        self._outcome = outcome
+
+    def connected(self, reason: Reason) -> None:
+        listener, outcome = self._listener, self._outcome
+        if reason.is_failure:
+            outcome.auth_refused = is_auth_refusal(reason)
+            outcome.end = str(describe_refusal(reason, "--username-file and --password-file"))
+            return
+        listener._backoff.reset()
+        self._transport.subscribe(subscriptions(listener.prefix))
+
+    def subscribed(self, reasons: Sequence[Reason]) -> None:
+        listener, outcome = self._listener, self._outcome
+        if any(r.is_failure for r in reasons):
+            outcome.auth_refused = True
+            outcome.end = f"the broker refused the subscriptions to {listener.prefix}/+/...: ({', '.join(map(str, reasons))})"
+        else:
+            listener._link(f"connected to {listener.connection.address}, subscribed to {listener.prefix}/+/events, status, state")
+            listener.subscribed.set()
+
+    def disconnected(self, reason: Reason, detail: str | None) -> None:
+        if self._outcome.end is None:
+            self._outcome.end = "connection lost" + ("" if reason.value == 0 else f": {reason}")
+
+    def message(self, topic: str, payload: bytes, mid: int) -> None:
+        self._listener._handle(topic, payload)
+        self._transport.acknowledge(mid)  # only now: a kept event is committed to the store first

@@ -3,10 +3,11 @@
 The monitor commits events to the store and moves on; this thread reads the pending events (and
 the status records it queues itself) and publishes them with QoS 1, marking each one delivered
 only when the broker's PUBACK for it arrives. The store, not paho's memory, is the queue: every
-connection gets a fresh paho client, and after any loss the backlog is read again from the oldest
+connection gets a fresh client, and after any loss the backlog is read again from the oldest
 pending row, so a message whose PUBACK was lost goes out again (with the same event_id: the back
 office drops it). Events go before status records; within each, oldest first, at most
-max_rate_msgs_per_s and max_inflight unacknowledged at a time.
+max_rate_msgs_per_s and max_inflight unacknowledged at a time. The client comes from a transport
+factory (transport.py): paho by default, memory_transport in tests.
 
 Connection failures are retried with a doubling, jittered backoff; each change of the link's
 state (connected, lost, failing for a new reason) is logged once, not each attempt.
@@ -23,9 +24,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import paho.mqtt.client as mqtt
-from paho.mqtt.reasoncodes import ReasonCode
-
 from bogiemon.daemon.delivery.connection import (
     ConnectionSettings,
     CredentialsError,
@@ -33,11 +31,13 @@ from bogiemon.daemon.delivery.connection import (
     describe_closed,
     describe_connect_error,
     describe_refusal,
-    new_client,
 )
+from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.delivery.schema import STATE_OFFLINE, STATE_ONLINE, EventMessage, StatusMessage, Topics, dump
+from bogiemon.daemon.delivery.transport import MqttTransport, Reason, TransportEvents, TransportFactory, Will
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.store import EventStore, OutboxCounts, PendingEvent, PendingStatus
+from bogiemon.drivers.reconnect import Backoff
 
 StatusSource = Callable[[OutboxCounts, float], StatusMessage]  # (outbox counts, Unix seconds) -> status
 
@@ -100,38 +100,15 @@ class TokenBucket:
         return False
 
 
-class Backoff:
-    """Waits between connection attempts: doubling from min_s up to max_s, each drawn in [w/2, w].
-
-    The jitter spreads a fleet's reconnections after a broker restart; its generator is seeded
-    (with the wagon id in the publisher), so a wagon's waits are reproducible.
-    """
-
-    def __init__(self, min_s: float, max_s: float, rng: random.Random) -> None:
-        self.min_s = min_s
-        self.max_s = max_s
-        self._rng = rng
-        self._next_s = min_s
-
-    def next_delay_s(self) -> float:
-        ceiling_s = self._next_s
-        self._next_s = min(self.max_s, self._next_s * 2)
-        return ceiling_s * (0.5 + 0.5 * self._rng.random())
-
-    def reset(self) -> None:
-        self._next_s = self.min_s
-
-
 @dataclass
 class _Session:
-    """One connection: its paho client and what is in flight on it."""
+    """One connection: its transport and what is in flight on it."""
 
-    client: mqtt.Client
+    transport: MqttTransport
     started_s: float
     connected: bool = False  # the broker accepted the connection (CONNACK)
     announced: bool = False  # "online" sent and the connection logged
     end_reason: LinkProblem | None = None  # set by a callback: the session is over
-    socket_error: str | None = None  # paho's last error line: an SSL alert says why TLS 1.3 failed
     inflight: dict[int, tuple[str, int]] = field(default_factory=dict)  # mid -> ("event"|"status", seq)
     control_mids: set[int] = field(default_factory=set)  # the state messages, not in the outbox
     acked_events: list[int] = field(default_factory=list)
@@ -154,6 +131,7 @@ class OutboxPublisher:
         status_source: StatusSource | None = None,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
+        transport_factory: TransportFactory = paho_transport,
     ) -> None:
         self.settings = settings
         self.state_dir = Path(state_dir)
@@ -163,12 +141,13 @@ class OutboxPublisher:
         self.error: BaseException | None = None  # an internal error that ended the thread
         self._clock = clock
         self._wall_clock = wall_clock
+        self._transport_factory = transport_factory
         self._topics = settings.topics
         self._client_id = settings.client_id or f"bogiemon-{settings.wagon_id}"
-        self._backoff = Backoff(settings.backoff_min_s, settings.backoff_max_s, random.Random(settings.wagon_id))
+        # Jittered so that a fleet does not reconnect in step; seeded with the wagon id, reproducibly.
+        self._backoff = Backoff(settings.backoff_min_s, settings.backoff_max_s, clock, random.Random(settings.wagon_id))
         self._bucket = TokenBucket(settings.max_rate_msgs_per_s, max(1.0, settings.max_rate_msgs_per_s), clock())
         self._session: _Session | None = None
-        self._next_attempt_s = 0.0
         self._last_state: tuple[str, str] | None = None
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -231,15 +210,16 @@ class OutboxPublisher:
                 self._trim(store)
             session = self._session
             if session is None:
-                if now_s >= self._next_attempt_s:
+                due_in_s = self._backoff.due_in_s()
+                if due_in_s <= 0:
                     self._open_session(now_s)
                 else:
-                    until_s = min(self._next_attempt_s, next_status_s if period_s > 0 else now_s + 1.0, next_trim_s)
+                    until_s = min(now_s + due_in_s, next_status_s if period_s > 0 else now_s + 1.0, next_trim_s)
                     self._stop.wait(max(0.0, min(until_s - now_s, 1.0)))
                 continue
-            rc = session.client.loop(timeout=IO_WAIT_S)  # network I/O; the callbacks run here
-            if rc != mqtt.MQTT_ERR_SUCCESS and session.end_reason is None:
-                session.end_reason = LinkProblem("lost", f"connection lost: {mqtt.error_string(rc)}")
+            error = session.transport.loop(IO_WAIT_S)  # network I/O; the events are reported here
+            if error is not None and session.end_reason is None:
+                session.end_reason = LinkProblem("lost", f"connection lost: {error}")
             self._after_io(store, session, self._clock())
 
     def _after_io(self, store: EventStore, session: _Session, now_s: float) -> None:
@@ -262,57 +242,19 @@ class OutboxPublisher:
         self.counters.connect_attempts += 1
         settings = self.settings.connection
         try:
-            client = new_client(settings, self._client_id, will=(self._topics.state, STATE_OFFLINE))
+            transport = self._transport_factory(settings, self._client_id, Will(self._topics.state, STATE_OFFLINE))
         except CredentialsError as exc:
             self._failed(LinkProblem("files", str(exc)))
             return
-        session = _Session(client=client, started_s=now_s)
-        self._bind(session)
+        session = _Session(transport=transport, started_s=now_s)
         try:
             # Blocking: TCP and TLS (bounded by connect_timeout_s). A clean start: the outbox, not
             # the broker's session, holds what is pending.
-            client.connect(settings.host, settings.port, keepalive=settings.keepalive_s, clean_start=True)
+            transport.connect(_SessionEvents(self, session), clean_start=True)
         except OSError as exc:
             self._failed(describe_connect_error(exc, settings))
             return
         self._session = session
-
-    def _bind(self, session: _Session) -> None:
-        def on_connect(client: mqtt.Client, _userdata: Any, _flags: Any, reason: ReasonCode, _props: Any) -> None:
-            if reason.is_failure:
-                session.end_reason = describe_refusal(reason)
-            else:
-                session.connected = True
-
-        def on_disconnect(client: mqtt.Client, _userdata: Any, _flags: Any, reason: ReasonCode, _props: Any) -> None:
-            if session.end_reason is None:
-                session.end_reason = describe_closed(self.settings.connection, session.connected, reason, session.socket_error)
-
-        def on_log(client: mqtt.Client, _userdata: Any, level: int, text: str) -> None:
-            if level == mqtt.MQTT_LOG_ERR:
-                session.socket_error = text
-
-        def on_publish(client: mqtt.Client, _userdata: Any, mid: int, reason: ReasonCode, _props: Any) -> None:
-            if mid in session.control_mids:
-                session.control_mids.discard(mid)
-                return
-            entry = session.inflight.pop(mid, None)
-            if entry is None:
-                return
-            if reason.is_failure:
-                # The broker refused the message (e.g. not authorised for the topic): it stays pending,
-                # and the session ends so that the order of the backlog is kept.
-                self.counters.refused += 1
-                session.end_reason = LinkProblem(
-                    "rejected-message", f"the broker refused a message ({reason}): check its ACL for {self._topics.prefix}/{self.settings.wagon_id}/#"
-                )
-                return
-            (session.acked_events if entry[0] == "event" else session.acked_status).append(entry[1])
-
-        session.client.on_connect = on_connect
-        session.client.on_disconnect = on_disconnect
-        session.client.on_publish = on_publish
-        session.client.on_log = on_log
 
     def _on_connected(self, session: _Session) -> None:
         self.counters.connections += 1
@@ -320,13 +262,11 @@ class OutboxPublisher:
             self._backoff.reset()
         counts = self.outbox
         self._note("connected", None, "info", pending=None if counts is None else counts.pending)
-        info = session.client.publish(self._topics.state, STATE_ONLINE, qos=1, retain=True)
-        session.control_mids.add(info.mid)
+        session.control_mids.add(session.transport.publish(self._topics.state, STATE_ONLINE, retain=True).mid)
 
     def _failed(self, problem: LinkProblem) -> None:
         self.counters.connect_failures += 1
-        delay_s = self._backoff.next_delay_s()
-        self._next_attempt_s = self._clock() + delay_s
+        delay_s = self._backoff.failed()
         # Configuration the broker will go on refusing is an error; an unreachable broker a warning.
         level = "error" if problem.kind in ("credentials", "tls", "files", "refused") else "warning"
         self._note("failing", problem, level, retry_in_s=round(delay_s, 2))
@@ -334,14 +274,10 @@ class OutboxPublisher:
     def _end_session(self, session: _Session, problem: LinkProblem) -> None:
         was_connected = session.connected
         self._session = None
-        try:
-            session.client.disconnect()
-        except Exception:  # noqa: BLE001 - a broken socket may fail to close cleanly; it is dropped anyway
-            pass
+        session.transport.disconnect()
         if was_connected:
             self.counters.connections_lost += 1
-            delay_s = self._backoff.next_delay_s()
-            self._next_attempt_s = self._clock() + delay_s
+            delay_s = self._backoff.failed()
             self._note("lost", problem, "warning", unacknowledged=len(session.inflight), retry_in_s=round(delay_s, 2))
         else:
             self._failed(problem)
@@ -352,17 +288,13 @@ class OutboxPublisher:
         if session is None:
             return
         if self.connected:
-            info = session.client.publish(self._topics.state, STATE_OFFLINE, qos=1, retain=True)
-            session.control_mids.add(info.mid)
+            session.control_mids.add(session.transport.publish(self._topics.state, STATE_OFFLINE, retain=True).mid)
             deadline_s = self._clock() + STOP_FLUSH_S
             while (session.control_mids or session.inflight) and session.end_reason is None and self._clock() < deadline_s:
-                session.client.loop(timeout=IO_WAIT_S)
+                session.transport.loop(IO_WAIT_S)
             self._commit_acks(store, session)
         self._session = None
-        try:
-            session.client.disconnect()
-        except Exception:  # noqa: BLE001
-            pass
+        session.transport.disconnect()
         self._note("stopped", None, "info")
 
     def _note(self, state: str, problem: LinkProblem | None, level: str, **fields: Any) -> None:
@@ -390,12 +322,12 @@ class OutboxPublisher:
                 topic, payload, retain = self._topics.events, dump(EventMessage.from_event(self.settings.wagon_id, item.seq, item.event)), False
             else:
                 topic, payload, retain = self._topics.status, item.body, True
-            info = session.client.publish(topic, payload, qos=1, retain=retain)
-            if info.rc != mqtt.MQTT_ERR_SUCCESS:
-                session.end_reason = LinkProblem("lost", f"publish failed: {mqtt.error_string(info.rc)}")
+            sent = session.transport.publish(topic, payload, retain=retain)
+            if sent.error is not None:
+                session.end_reason = LinkProblem("lost", f"publish failed: {sent.error}")
                 return
             self.counters.published += 1
-            session.inflight[info.mid] = ("event", item.seq) if isinstance(item, PendingEvent) else ("status", item.seq)
+            session.inflight[sent.mid] = ("event", item.seq) if isinstance(item, PendingEvent) else ("status", item.seq)
 
     def _next_item(self, store: EventStore, session: _Session, now_s: float) -> PendingEvent | PendingStatus | None:
         """The oldest pending event not yet sent on this session, else the oldest status record."""
@@ -461,3 +393,42 @@ class OutboxPublisher:
                 session.read_status_seq = max([seq for kind, seq in session.inflight.values() if kind == "status"], default=0)
                 session.events_exhausted_s = session.status_exhausted_s = None
         self.outbox = store.outbox_counts()
+
+
+class _SessionEvents(TransportEvents):
+    """The transport's events for one session, noted for the publisher's thread (they run in it)."""
+
+    def __init__(self, publisher: OutboxPublisher, session: _Session) -> None:
+        self._publisher = publisher
+        self._session = session
+
+    def connected(self, reason: Reason) -> None:
+        if reason.is_failure:
+            self._session.end_reason = describe_refusal(reason)
+        else:
+            self._session.connected = True
+
+    def disconnected(self, reason: Reason, detail: str | None) -> None:
+        session = self._session
+        if session.end_reason is None:
+            session.end_reason = describe_closed(self._publisher.settings.connection, session.connected, reason, detail)
+
+    def published(self, mid: int, reason: Reason) -> None:
+        session = self._session
+        if mid in session.control_mids:
+            session.control_mids.discard(mid)
+            return
+        entry = session.inflight.pop(mid, None)
+        if entry is None:
+            return
+        if reason.is_failure:
+            # The broker refused the message (e.g. not authorised for the topic): it stays pending,
+            # and the session ends so that the order of the backlog is kept.
+            publisher = self._publisher
+            publisher.counters.refused += 1
+            session.end_reason = LinkProblem(
+                "rejected-message",
+                f"the broker refused a message ({reason}): check its ACL for {publisher.settings.topic_prefix}/{publisher.settings.wagon_id}/#",
+            )
+            return
+        (session.acked_events if entry[0] == "event" else session.acked_status).append(entry[1])

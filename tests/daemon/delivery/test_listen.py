@@ -14,8 +14,8 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from bogiemon.daemon.cli.main import main
 from bogiemon.daemon.delivery.schema import EventMessage, dump
-from tests.daemon.mqtt_broker import Broker, make_password_file
-from tests.daemon.test_mqtt import WAGON, make_events
+from tests.daemon.delivery.mqtt_broker import Broker, make_password_file
+from tests.daemon.delivery.support import WAGON, make_events
 
 BOGIEMON = str(Path(sys.executable).with_name("bogiemon"))
 
@@ -42,18 +42,6 @@ def start_listen(port: int, *args: str) -> subprocess.Popen[str]:
     return proc
 
 
-@pytest.fixture
-def broker(tmp_path: Path) -> Broker:
-    from tests.daemon.mqtt_broker import ensure_mosquitto
-
-    reason = ensure_mosquitto()
-    if reason is not None:
-        pytest.skip(reason)
-    b = Broker(tmp_path / "broker").start()
-    yield b  # type: ignore[misc]
-    b.kill()
-
-
 def test_listen_prints_each_event_once_and_stores_it_across_runs(tmp_path: Path, broker: Broker) -> None:
     events = [EventMessage.from_event(WAGON, seq, e) for seq, e in enumerate(make_events(4), start=1)]
     topic = f"fleet/test/{WAGON}/events"
@@ -76,11 +64,7 @@ def test_listen_prints_each_event_once_and_stores_it_across_runs(tmp_path: Path,
     assert [r[0] for r in rows] == [e.event_id for e in events]
 
 
-def test_listen_with_wrong_credentials_ends_with_one_line(tmp_path: Path) -> None:
-    from tests.daemon.mqtt_broker import ensure_mosquitto
-
-    if (reason := ensure_mosquitto()) is not None:
-        pytest.skip(reason)
+def test_listen_with_wrong_credentials_ends_with_one_line(tmp_path: Path, mosquitto: None) -> None:
     users = make_password_file(tmp_path / "passwords", "office", "right-Pa55")
     b = Broker(tmp_path / "broker", password_file=users).start()
     try:

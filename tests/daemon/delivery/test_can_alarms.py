@@ -12,7 +12,7 @@ import pytest
 import structlog.testing
 from can.interfaces.virtual import VirtualBus
 
-from bogiemon.daemon.can_alarms import CanAlarmSink, Heartbeat, alarm_payload, heartbeat_payload, load_alarm_codecs, worst_indicator
+from bogiemon.daemon.delivery.can_alarms import CanAlarmSink, Heartbeat, alarm_payload, heartbeat_payload, load_alarm_codecs, worst_indicator
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.drivers.candb import DbcError, load_layout, shipped_dbc_text
 from bogiemon.drivers.player import PlayError, open_player_bus
@@ -120,7 +120,7 @@ def test_the_heartbeat_repeats_the_state_and_the_last_alarm_counter() -> None:
 
 
 def test_a_bus_that_is_not_there_yet_is_retried_quietly_and_the_alarm_waits_for_it(monkeypatch: pytest.MonkeyPatch) -> None:
-    import bogiemon.daemon.can_alarms as can_alarms
+    import bogiemon.daemon.delivery.can_alarms as can_alarms
 
     monkeypatch.setattr(can_alarms, "BACKOFF_MIN_S", 0.02)
     name = channel()

@@ -1,4 +1,4 @@
-"""A real mosquitto broker for the MQTT tests, on loopback on a free port, with test certificates.
+"""A real mosquitto broker for the real-component MQTT tests, on loopback on a free port, with test certificates.
 
 mosquitto comes from Debian's package (`make test` installs it through `make system-deps` when
 root can use apt-get; `ensure_mosquitto` tries the same). The certificates are made with the
@@ -9,13 +9,10 @@ second, untrusted CA with a client certificate of its own (the bad-certificate c
 from __future__ import annotations
 
 import os
-import select
 import shutil
 import signal
 import socket
-import struct
 import subprocess
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -157,85 +154,3 @@ class Broker:
     @property
     def running(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
-
-
-class LinkProxy:
-    """A TCP relay between a client and the broker whose link can be cut: the network-loss case.
-
-    cut() resets every relayed connection (SO_LINGER 0: an RST, as a dropped cellular link looks
-    to the far end at best) and refuses new ones until restore().
-    """
-
-    def __init__(self, target_port: int) -> None:
-        self.target_port = target_port
-        self.port = free_port()
-        self._pairs: list[tuple[socket.socket, socket.socket]] = []
-        self._lock = threading.Lock()
-        self._listener: socket.socket | None = None
-        self._stopped = threading.Event()
-        self.restore()
-
-    def restore(self) -> None:
-        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind(("127.0.0.1", self.port))
-        listener.listen(8)
-        self._listener = listener
-        threading.Thread(target=self._accept, args=(listener,), daemon=True).start()
-
-    def cut(self) -> None:
-        listener, self._listener = self._listener, None
-        if listener is not None:
-            try:
-                listener.shutdown(socket.SHUT_RDWR)  # wakes the accepting thread; close() alone would not
-            except OSError:
-                pass
-            listener.close()
-        with self._lock:
-            pairs, self._pairs = self._pairs, []
-        for pair in pairs:
-            for sock in pair:
-                try:
-                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-                    sock.close()
-                except OSError:
-                    pass
-
-    def close(self) -> None:
-        self._stopped.set()
-        self.cut()
-
-    def _accept(self, listener: socket.socket) -> None:
-        while not self._stopped.is_set():
-            try:
-                client, _ = listener.accept()
-            except OSError:
-                return  # cut: the listening socket is closed
-            try:
-                upstream = socket.create_connection(("127.0.0.1", self.target_port))
-            except OSError:
-                client.close()
-                continue
-            with self._lock:
-                self._pairs.append((client, upstream))
-            threading.Thread(target=self._pump, args=(client, upstream), daemon=True).start()
-
-    @staticmethod
-    def _pump(a: socket.socket, b: socket.socket) -> None:
-        peers = {a: b, b: a}
-        try:
-            while True:
-                readable, _, _ = select.select([a, b], [], [], 0.5)
-                for sock in readable:
-                    data = sock.recv(65536)
-                    if not data:
-                        return
-                    peers[sock].sendall(data)
-        except (OSError, ValueError):
-            return  # cut, or one side closed
-        finally:
-            for sock in (a, b):
-                try:
-                    sock.close()
-                except OSError:
-                    pass

@@ -28,6 +28,7 @@ from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.drivers.candb import DbcError, MessageCodec, compile_message, shipped_dbc_text
 from bogiemon.drivers.player import PlayError, open_player_bus
+from bogiemon.drivers.reconnect import Backoff
 
 ALARM_MESSAGE, HEARTBEAT_MESSAGE = "BogieAlarm", "BogieHeartbeat"
 ALARM_KINDS = {EventKind.CONFIRMED: 1, EventKind.CLEARED: 2}  # the events that make a frame
@@ -201,23 +202,23 @@ class CanAlarmSink(EventSink):
 
     def _run(self) -> None:
         bus: can.BusABC | None = None
-        backoff_s, next_open_s = BACKOFF_MIN_S, 0.0
+        backoff = Backoff(BACKOFF_MIN_S, BACKOFF_MAX_S, self._clock)  # the first open is due at once
         next_beat_s = self._clock()
         try:
             while not self._stop.is_set():
                 now_s = self._clock()
-                if bus is None and now_s >= next_open_s:
+                if bus is None and backoff.due_in_s() <= 0:
                     try:
                         bus = self._open()
-                        backoff_s = BACKOFF_MIN_S
+                        backoff.reset()
                         self._problem(None)
                     except PlayError as exc:
-                        next_open_s, backoff_s = now_s + backoff_s, min(BACKOFF_MAX_S, backoff_s * 2)
+                        backoff.failed()
                         self._problem(str(exc))
                 beat_due = self.heartbeat_period_s > 0 and self.heartbeat_source is not None
                 wait_s = max(0.0, next_beat_s - now_s) if beat_due else 0.5
                 if bus is None:
-                    wait_s = min(wait_s, max(0.0, next_open_s - now_s))
+                    wait_s = min(wait_s, backoff.due_in_s())
                 self._take_events(wait_s)
                 now_s = self._clock()
                 if beat_due and now_s >= next_beat_s:
@@ -227,7 +228,7 @@ class CanAlarmSink(EventSink):
                 if bus is not None:
                     bus = self._send_alarms(bus)
                     if bus is None:
-                        next_open_s = self._clock() + backoff_s
+                        backoff.failed()  # the bus was lost sending an alarm: reopen after a wait
         finally:
             if bus is not None:
                 bus.shutdown()
