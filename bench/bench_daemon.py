@@ -39,7 +39,7 @@ from bogiemon.daemon.config import load_config  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.monitor import WindowReport  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
-from bogiemon.drivers.can_source import CanSource, VirtualBusPort  # noqa: E402
+from bogiemon.drivers.can_source import CanBusPort, CanSource  # noqa: E402
 from bogiemon.drivers.candb import load_layout  # noqa: E402
 from bogiemon.drivers.player import open_player_bus, play  # noqa: E402
 from bogiemon.drivers.recording import write_csv_recording  # noqa: E402
@@ -117,7 +117,7 @@ def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = Non
         assert player.ident is not None
         steady = _SteadyState(time.pthread_getcpuclockid(player.ident))
         service = Service(
-            config_path, lambda c: CanSource(VirtualBusPort(channel), layout, FS_HZ, coalesce_s=coalesce_s),
+            config_path, lambda c: CanSource(CanBusPort("virtual", channel), layout, FS_HZ, coalesce_s=coalesce_s),
             sinks=[], observers=[steady.observe],
         )  # fmt: skip
         timer = threading.Timer(START_UP_S + seconds, service.flags.stop.set)

@@ -30,7 +30,7 @@ from timing import Figure, table, time_interleaved  # noqa: E402
 
 from bogiemon.drivers.base import EndOfStream, HealthCounters, Source  # noqa: E402
 from bogiemon.drivers.can_decode import CanFrameDecoder  # noqa: E402
-from bogiemon.drivers.can_source import CanSource, VirtualBusPort  # noqa: E402
+from bogiemon.drivers.can_source import CanBusPort, CanSource  # noqa: E402
 from bogiemon.drivers.candb import load_layout, shipped_dbc_text  # noqa: E402
 from bogiemon.drivers.player import encode_instants, open_player_bus, play, write_can_log  # noqa: E402
 from bogiemon.drivers.recording import write_csv_recording  # noqa: E402
@@ -100,7 +100,7 @@ def cpu_can(seconds: float, layout_name: str, coalesce_s: float | None = None) -
     channel = f"bench-{layout_name}-{time.monotonic_ns()}"
     data = accel(int(seconds * FS_HZ))
     player_cpu: list[float] = []
-    with CanSource(VirtualBusPort(channel), layout, FS_HZ, coalesce_s=coalesce_s) as source:
+    with CanSource(CanBusPort("virtual", channel), layout, FS_HZ, coalesce_s=coalesce_s) as source:
         bus = open_player_bus("virtual", channel)
 
         def player() -> None:

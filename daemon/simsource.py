@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source
-from bogiemon.drivers.can_source import CanSource, VirtualBusPort
+from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import CanLayout, load_layout
 from bogiemon.drivers.player import open_player_bus, play
 
@@ -40,7 +40,7 @@ class SimulatedSource(Source):
         can_layout = load_layout(dbc_path, layout)
         # The reader's bus must exist before the first frame: a virtual bus only delivers to
         # the buses open at sending time.
-        self._reader = CanSource(VirtualBusPort(channel), can_layout, self.fs_hz, max_block_s=max_block_s)
+        self._reader = CanSource(CanBusPort("virtual", channel), can_layout, self.fs_hz, max_block_s=max_block_s)
         self.counters: HealthCounters = self._reader.counters
         self.player_error: BaseException | None = None
         self._stop = threading.Event()

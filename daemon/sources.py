@@ -1,11 +1,15 @@
 """The source the config asks for: `open_source(config)` builds the driver from [source].
 
 The drivers take plain arguments; this is the one place that reads their settings from the
-config tree (drivers/ never imports daemon/). The sample rate of the live sources is the
-configured processing.fs_hz; a CSV replay brings its own.
+config tree (drivers/ never imports daemon/). Each [source] kind (a model of daemon/config.py)
+has one opener in OPENERS. The sample rate of the live sources is the configured
+processing.fs_hz; a CSV replay brings its own.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from bogiemon.daemon.config import (
     BogiemonConfig,
@@ -15,10 +19,57 @@ from bogiemon.daemon.config import (
     SimulatedSourceConfig,
 )
 from bogiemon.drivers.base import Source
-from bogiemon.drivers.can_source import BusPort, CanSource, SocketcanBusPort, VirtualBusPort
+from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import load_layout
 from bogiemon.drivers.replay import open_replay
 from bogiemon.drivers.serial_source import SerialSource
+
+# An opener takes its own [source] model (the first argument) and the whole config.
+Opener = Callable[[Any, BogiemonConfig], Source]
+
+
+def _open_can(src: CanSourceConfig, config: BogiemonConfig) -> Source:
+    return CanSource(
+        CanBusPort(src.interface, src.channel, src.receive_buffer_bytes),
+        load_layout(src.dbc_path or None, src.layout),
+        config.processing.fs_hz,
+        max_block_s=src.max_block_s,
+        backoff_min_s=src.reconnect_backoff_min_s,
+        backoff_max_s=src.reconnect_backoff_max_s,
+    )
+
+
+def _open_serial(src: SerialSourceConfig, config: BogiemonConfig) -> Source:
+    return SerialSource(
+        src.port,
+        src.baudrate,
+        config.processing.fs_hz,
+        max_block_s=src.max_block_s,
+        backoff_min_s=src.reconnect_backoff_min_s,
+        backoff_max_s=src.reconnect_backoff_max_s,
+    )
+
+
+def _open_simulated(src: SimulatedSourceConfig, config: BogiemonConfig) -> Source:
+    from bogiemon.daemon.simsource import open_simulated  # the simulator, only for this kind
+
+    return open_simulated(config)
+
+
+def _open_replay(src: ReplaySourceConfig, config: BogiemonConfig) -> Source:
+    is_csv = src.path.lower().endswith(".csv")
+    layout = None if is_csv else load_layout(src.dbc_path or None, src.layout)
+    return open_replay(
+        src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s
+    )
+
+
+OPENERS: Mapping[type, Opener] = {
+    CanSourceConfig: _open_can,
+    SerialSourceConfig: _open_serial,
+    SimulatedSourceConfig: _open_simulated,
+    ReplaySourceConfig: _open_replay,
+}
 
 
 def open_source(config: BogiemonConfig) -> Source:
@@ -27,35 +78,7 @@ def open_source(config: BogiemonConfig) -> Source:
     Raises DbcError or RecordingError (user errors) for a bad DBC or an unreadable recording.
     """
     src = config.source
-    fs_hz = config.processing.fs_hz
-    if isinstance(src, CanSourceConfig):
-        port: BusPort
-        if src.interface == "socketcan":
-            port = SocketcanBusPort(src.channel, src.receive_buffer_bytes)
-        else:
-            port = VirtualBusPort(src.channel)
-        return CanSource(
-            port,
-            load_layout(src.dbc_path or None, src.layout),
-            fs_hz,
-            max_block_s=src.max_block_s,
-            backoff_min_s=src.reconnect_backoff_min_s,
-            backoff_max_s=src.reconnect_backoff_max_s,
-        )
-    if isinstance(src, SerialSourceConfig):
-        return SerialSource(
-            src.port,
-            src.baudrate,
-            fs_hz,
-            max_block_s=src.max_block_s,
-            backoff_min_s=src.reconnect_backoff_min_s,
-            backoff_max_s=src.reconnect_backoff_max_s,
-        )
-    if isinstance(src, SimulatedSourceConfig):
-        from bogiemon.daemon.simsource import open_simulated  # the simulator, only for this kind
-
-        return open_simulated(config)
-    assert isinstance(src, ReplaySourceConfig)
-    is_csv = src.path.lower().endswith(".csv")
-    layout = None if is_csv else load_layout(src.dbc_path or None, src.layout)
-    return open_replay(src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=fs_hz, max_block_s=src.max_block_s)
+    opener = OPENERS.get(type(src))
+    if opener is None:  # the config accepted a kind this table lacks: a bug, not a user error
+        raise TypeError(f"[source] kind {getattr(src, 'kind', '?')!r} ({type(src).__name__}) has no opener in daemon/sources.py OPENERS")
+    return opener(src, config)

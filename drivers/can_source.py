@@ -1,9 +1,10 @@
 """The CAN source: a python-can bus in, Blocks out; survives what a real bus does.
 
-The bus is built by a BusPort, the one extension point: SocketcanBusPort on a gateway (can0,
-vcan0), VirtualBusPort for tests and in-process benches. Both instantiate the interface class
-directly with every setting spelled out, never `can.Bus(...)`, so no ~/.canrc, can.ini or CAN_*
-environment variable is read. Everything past the bus construction is the same code.
+The bus comes from a BusPort, the one extension point. CanBusPort opens a python-can bus through
+drivers/canbus.py: kind 'socketcan' on a gateway (can0, vcan0), 'virtual' for tests and
+in-process benches. canbus.py instantiates the interface class directly with every setting
+spelled out, never `can.Bus(...)`, so no ~/.canrc, can.ini or CAN_* environment variable is read.
+Only the bus construction differs between the kinds; everything past it is the same code.
 
 read(timeout_s) gathers frames for up to timeout_s, decodes them in one batch and returns the
 samples received since the last call: a Block as soon as max_block_s of samples are in or a
@@ -28,11 +29,11 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 
 import can
-from can.interfaces.virtual import VirtualBus
 
 from bogiemon.drivers.base import Block, HealthCounters, Source
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.canbus import BusRole, bus_kind, open_bus
 from bogiemon.drivers.reconnect import Backoff
 from bogiemon.drivers.segments import SampleQueue
 
@@ -63,45 +64,29 @@ class BusPort(ABC):
         return None
 
 
-class VirtualBusPort(BusPort):
-    """python-can's in-process virtual bus: every bus on the same channel sees the others' frames."""
+class CanBusPort(BusPort):
+    """A python-can bus of a kind of drivers/canbus.py ('socketcan', 'virtual') on one channel.
 
-    def __init__(self, channel: str) -> None:
-        self.channel = channel
-        self.description = f"virtual CAN channel '{channel}'"
-
-    def open(self) -> can.BusABC:
-        # rx_queue_size=0: an unbounded queue, as lossless as the tests need.
-        return VirtualBus(channel=self.channel, receive_own_messages=False, rx_queue_size=0, preserve_timestamps=False)
-
-
-class SocketcanBusPort(BusPort):
-    """A SocketCAN interface (can0, vcan0) with a receive buffer sized for a slow reader.
-
-    The socket's receive buffer holds the frames that arrive while the daemon is busy; each
-    frame costs the kernel a whole socket buffer (several hundred bytes), not 16. SO_RCVBUFFORCE
-    (needs CAP_NET_ADMIN) sets it past net.core.rmem_max; without the capability SO_RCVBUF is
-    capped there. effective_receive_buffer_bytes is what the kernel granted.
+    Where the bus has a socket (SocketCAN), its receive buffer holds the frames that arrive while
+    the daemon is busy; each frame costs the kernel a whole socket buffer (several hundred bytes),
+    not 16. SO_RCVBUFFORCE (needs CAP_NET_ADMIN) sets it past net.core.rmem_max; without the
+    capability SO_RCVBUF is capped there. effective_receive_buffer_bytes is what the kernel
+    granted (None: no socket, or receive_buffer_bytes None leaves the kernel's default). The
+    kernel's drop count is read from the same socket; a virtual bus has neither.
     """
 
-    def __init__(self, channel: str, receive_buffer_bytes: int) -> None:
+    def __init__(self, kind: str, channel: str, receive_buffer_bytes: int | None = None) -> None:
+        self.kind = kind
         self.channel = channel
         self.receive_buffer_bytes = receive_buffer_bytes
-        self.description = f"SocketCAN interface '{channel}'"
+        self.description = bus_kind(kind).description.format(channel=channel)  # an unknown kind fails here
         self.effective_receive_buffer_bytes: int | None = None
 
     def open(self) -> can.BusABC:
-        from can.interfaces.socketcan import SocketcanBus  # the module imports fine anywhere; only AF_CAN needs Linux
-
-        bus = SocketcanBus(
-            channel=self.channel,
-            receive_own_messages=False,
-            local_loopback=True,
-            fd=False,
-            can_filters=None,
-            ignore_rx_error_frames=False,  # error frames are how bus-off and overflows show
-        )
-        self.effective_receive_buffer_bytes = set_receive_buffer(bus.socket, self.receive_buffer_bytes)
+        bus = open_bus(self.kind, self.channel, BusRole.RECEIVER)
+        sock = getattr(bus, "socket", None)
+        if self.receive_buffer_bytes is not None and isinstance(sock, socket.socket):
+            self.effective_receive_buffer_bytes = set_receive_buffer(sock, self.receive_buffer_bytes)
         return bus
 
     def dropped_frames(self, bus: can.BusABC) -> int | None:

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import SensorStatus
 from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.canbus import BusRole, UnknownBusKind, open_bus
 
 # How long a full transmit queue may refuse frames before playing gives up (a bus nobody
 # acknowledges never drains).
@@ -158,19 +159,11 @@ def _send(bus: can.BusABC, message: can.Message, clock: Callable[[], float], sle
 
 
 def open_player_bus(interface: str, channel: str) -> can.BusABC:
-    """A bus to play on, every setting explicit; PlayError in one line if the interface is missing."""
-    if interface == "virtual":
-        from can.interfaces.virtual import VirtualBus
-
-        return VirtualBus(channel=channel, receive_own_messages=False, rx_queue_size=0, preserve_timestamps=False)
-    if interface != "socketcan":
-        raise PlayError(f"unknown CAN interface '{interface}': use 'socketcan' or 'virtual'")
-    from can.interfaces.socketcan import SocketcanBus
-
+    """A bus to send on (drivers/canbus.py, role SENDER); PlayError in one line if the interface is missing."""
     try:
-        return SocketcanBus(
-            channel=channel, receive_own_messages=False, local_loopback=True, fd=False, ignore_rx_error_frames=True
-        )
+        return open_bus(interface, channel, BusRole.SENDER)
+    except UnknownBusKind as exc:
+        raise PlayError(str(exc)) from None
     except OSError as exc:
         if exc.errno == errno.EAFNOSUPPORT:
             raise PlayError(

@@ -1,4 +1,4 @@
-"""`bogiemon play FILE --interface socketcan --channel vcan0 [--rate N] [--layout hub|per-node]`.
+"""`bogiemon play FILE --interface socketcan --channel vcan0 [--rate N] [--layout hub|per-node] [--ready-file PATH]`.
 
 Puts a CSV recording (or a simulated run) on a CAN bus as the sensor hub or nodes would send it,
 encoded with the DBC, at real-time pace or N times faster (--rate 0: as fast as possible).
@@ -9,26 +9,37 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
-from bogiemon.drivers.candb import LAYOUTS, load_layout
-from bogiemon.drivers.player import PlayError, open_player_bus, play
-from bogiemon.drivers.recording import read_csv_recording
+from bogiemon.drivers.canbus import KINDS
+
+# drivers.candb.LAYOUTS, written out: importing candb (cantools, numpy) here would slow every
+# command's start-up; a test checks the two agree.
+LAYOUT_CHOICES = ("hub", "per-node")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("play", help="send a CSV recording on a CAN bus as the sensors would (bench, tests)")
     p.add_argument("file", metavar="FILE", help="CSV recording (header time_s,a1,a2,a3)")
-    p.add_argument("--interface", choices=("socketcan", "virtual"), default="socketcan",
+    p.add_argument("--interface", choices=sorted(KINDS), default="socketcan",
                    help="python-can interface (default socketcan; virtual: in-process, for tests)")  # fmt: skip
     p.add_argument("--channel", default="vcan0", help="CAN interface or virtual channel (default vcan0)")
     p.add_argument("--rate", type=float, default=1.0,
                    help="pace: 1 real time (default), N times faster, 0 as fast as possible")  # fmt: skip
-    p.add_argument("--layout", choices=LAYOUTS, default="hub", help="frame layout of the DBC (default hub)")
+    p.add_argument("--layout", choices=LAYOUT_CHOICES, default="hub", help="frame layout of the DBC (default hub)")
     p.add_argument("--dbc", help="DBC file (default: the shipped config/bogiemon.dbc)")
+    p.add_argument("--ready-file", metavar="PATH", type=Path,
+                   help="once the bus is open, just before the first frame, write PATH (one line: interface "
+                        "and channel), so a script or a test waits for the player instead of sleeping; "
+                        "remove it before starting")  # fmt: skip
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.drivers.candb import load_layout
+    from bogiemon.drivers.player import PlayError, open_player_bus, play
+    from bogiemon.drivers.recording import read_csv_recording
+
     if args.rate < 0:
         raise PlayError(f"--rate must be 0 (as fast as possible) or positive, got {args.rate:g}")
     # python-can logs a failed bind at ERROR before raising; our PlayError says it in one line,
@@ -38,6 +49,11 @@ def run(args: argparse.Namespace) -> int:
     recording = read_csv_recording(args.file)
     bus = open_player_bus(args.interface, args.channel)
     try:
+        if args.ready_file is not None:
+            try:
+                args.ready_file.write_text(f"{args.interface} {args.channel}\n", encoding="utf-8")
+            except OSError as exc:
+                raise PlayError(f"--ready-file {args.ready_file}: cannot write: {exc.strerror or exc}") from None
         stats = play(bus, layout, recording.accel_mps2, recording.fs_hz, rate=args.rate)
     finally:
         bus.shutdown()

@@ -7,6 +7,7 @@ import socket
 import time
 
 import can
+import can.interfaces.socketcan
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -14,8 +15,9 @@ from hypothesis import strategies as st
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
 from bogiemon.drivers.can_decode import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CanFrameDecoder
-from bogiemon.drivers.can_source import BusPort, CanSource, VirtualBusPort, set_receive_buffer, socket_drops
+from bogiemon.drivers.can_source import BusPort, CanBusPort, CanSource, set_receive_buffer, socket_drops
 from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.canbus import UnknownBusKind
 from bogiemon.drivers.player import encode_instants, open_player_bus, play
 from bogiemon.drivers.segments import SampleQueue
 from tests.drivers.frames import FS_HZ, HUB, PER_NODE, channel_name, check_blocks, coded_accel, layout_frames
@@ -200,11 +202,11 @@ def test_per_node_stream_damage_is_counted_never_raised_never_bridged(stream) ->
 # ---- the source on a virtual bus -------------------------------------------------------------
 
 
-class FlakyPort(VirtualBusPort):
+class FlakyPort(CanBusPort):
     """A virtual bus whose interface can vanish: opening fails while `missing` > 0."""
 
     def __init__(self, channel: str) -> None:
-        super().__init__(channel)
+        super().__init__("virtual", channel)
         self.missing = 0
         self.buses: list[can.BusABC] = []
 
@@ -232,7 +234,7 @@ def test_round_trip_through_the_player_reproduces_the_samples_within_one_lsb(nam
     layout, channel = LAYOUTS[name], channel_name()
     rng = np.random.default_rng(7)
     accel = rng.standard_normal((1500, 3)) * 4.0 + 9.81
-    with CanSource(VirtualBusPort(channel), layout, FS_HZ) as source:
+    with CanSource(CanBusPort("virtual", channel), layout, FS_HZ) as source:
         bus = open_player_bus("virtual", channel)
         try:
             play(bus, layout, accel, FS_HZ, rate=0)
@@ -248,14 +250,14 @@ def test_round_trip_through_the_player_reproduces_the_samples_within_one_lsb(nam
 
 
 def test_read_waits_at_most_timeout_and_counts_an_empty_read() -> None:
-    with CanSource(VirtualBusPort(channel_name()), HUB, FS_HZ) as source:
+    with CanSource(CanBusPort("virtual", channel_name()), HUB, FS_HZ) as source:
         assert source.read(0.02) is None
         assert source.counters.timeouts == 1
 
 
 def test_a_read_returns_what_arrived_when_the_timeout_ends() -> None:
     channel = channel_name()
-    with CanSource(VirtualBusPort(channel), HUB, FS_HZ, max_block_s=1.0) as source:
+    with CanSource(CanBusPort("virtual", channel), HUB, FS_HZ, max_block_s=1.0) as source:
         sender = open_player_bus("virtual", channel)
         for message in layout_frames(HUB, np.arange(20)):
             sender.send(message)
@@ -320,6 +322,51 @@ def test_kernel_drops_are_read_from_the_socket(tmp_path) -> None:
     finally:
         receiver.close()
         sender.close()
+
+
+class SocketBus(can.BusABC):
+    """A bus with a socket, as SocketcanBus has (a UDP one: this kernel has no AF_CAN)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(channel=kwargs["channel"])
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # pragma: no cover - never sent on
+        pass
+
+    def _recv_internal(self, timeout):  # pragma: no cover - never read
+        return None, False
+
+    def shutdown(self) -> None:
+        self.socket.close()
+        super().shutdown()
+
+
+def test_a_socketcan_port_sizes_its_buses_socket_buffer_and_reads_its_drops(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(can.interfaces.socketcan, "SocketcanBus", SocketBus)
+    port = CanBusPort("socketcan", "can7", receive_buffer_bytes=8192)
+    bus = port.open()
+    try:
+        assert port.description == "SocketCAN interface 'can7'"
+        assert port.effective_receive_buffer_bytes == bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= 8192
+        assert port.dropped_frames(bus) == 0
+    finally:
+        bus.shutdown()
+
+
+def test_a_virtual_port_has_no_socket_so_no_buffer_and_no_drop_count() -> None:
+    port = CanBusPort("virtual", channel_name(), receive_buffer_bytes=8192)
+    bus = port.open()
+    try:
+        assert port.description == f"virtual CAN channel '{port.channel}'"
+        assert port.effective_receive_buffer_bytes is None and port.dropped_frames(bus) is None
+    finally:
+        bus.shutdown()
+
+
+def test_a_port_of_an_unknown_kind_is_refused_when_made() -> None:
+    with pytest.raises(UnknownBusKind, match="unknown CAN interface 'pcan'"):
+        CanBusPort("pcan", "can0")
 
 
 # ---- coalescing: the reader sleeps while a block fills instead of waking for every frame ------

@@ -11,8 +11,10 @@ import can
 import numpy as np
 import pytest
 
+from bogiemon.daemon.cli import play as play_command
 from bogiemon.daemon.cli.main import main
-from bogiemon.drivers.can_source import CanSource, VirtualBusPort
+from bogiemon.drivers.candb import LAYOUTS
+from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.player import PlayError, play
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, write_recording
 
@@ -83,7 +85,7 @@ def test_a_full_transmit_queue_is_waited_out_then_given_up_on() -> None:
 def test_cli_play_on_the_virtual_bus_feeds_the_can_source(tmp_path: Path, layout: str) -> None:
     accel = write_recording(tmp_path / "run.csv", 800)
     channel = channel_name()
-    with CanSource(VirtualBusPort(channel), HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
+    with CanSource(CanBusPort("virtual", channel), HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
         argv = ["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel, "--rate", "0"]
         assert main([*argv, "--layout", layout]) == 0
         blocks = []
@@ -97,7 +99,7 @@ def test_cli_play_on_the_virtual_bus_feeds_the_can_source(tmp_path: Path, layout
 def test_cli_play_at_real_time_pace_runs_beside_a_reader(tmp_path: Path) -> None:
     write_recording(tmp_path / "run.csv", 100)  # 0.2 s
     channel = channel_name()
-    with CanSource(VirtualBusPort(channel), HUB, FS_HZ) as source:
+    with CanSource(CanBusPort("virtual", channel), HUB, FS_HZ) as source:
         player = threading.Thread(target=main, args=(["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel],))
         player.start()
         got = 0
@@ -107,12 +109,33 @@ def test_cli_play_at_real_time_pace_runs_beside_a_reader(tmp_path: Path) -> None
     assert got == 100
 
 
+def test_cli_play_writes_its_ready_file_before_the_first_frame(tmp_path: Path) -> None:
+    write_recording(tmp_path / "run.csv", 100)  # 0.2 s at real time: the reader gets a block before the end
+    channel, ready = channel_name(), tmp_path / "ready"
+    argv = ["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel, "--ready-file", str(ready)]
+    with CanSource(CanBusPort("virtual", channel), HUB, FS_HZ, max_block_s=0.02) as source:
+        player = threading.Thread(target=main, args=(argv,))
+        player.start()
+        try:
+            block = source.read(5.0)  # returns at the first 10 samples (max_block_s), 20 ms into the run
+            assert block is not None and block.n_samples == 10
+            assert ready.read_text() == f"virtual {channel}\n"  # there when the first frame arrived
+        finally:
+            player.join()
+
+
+def test_cli_play_offers_the_layouts_of_the_dbc_module() -> None:
+    assert play_command.LAYOUT_CHOICES == LAYOUTS
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (["--interface", "socketcan", "--channel", "nosuchcan9"], "bogiemon: error: CAN interface 'nosuchcan9'"),
         (["--rate", "-1", "--interface", "virtual"], "bogiemon: error: --rate must be 0 (as fast as possible) or positive, got -1"),
         (["--dbc", "missing.dbc", "--interface", "virtual"], "bogiemon: error: missing.dbc: cannot read the DBC file"),
+        (["--interface", "virtual", "--ready-file", "no/such/dir/ready"],
+         "bogiemon: error: --ready-file no/such/dir/ready: cannot write: No such file or directory"),
     ],
 )
 def test_cli_play_user_errors_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:

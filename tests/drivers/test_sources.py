@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+from pydantic import BaseModel
 
 from bogiemon.daemon.config import ConfigError, parse_config
-from bogiemon.daemon.sources import open_source
-from bogiemon.drivers.can_source import CanSource, SocketcanBusPort, VirtualBusPort
+from bogiemon.daemon.sources import OPENERS, open_source
+from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import DbcError
 from bogiemon.drivers.replay import CanLogReplaySource, CsvReplaySource
 from bogiemon.drivers.serial_source import SerialSource
@@ -19,8 +22,8 @@ def test_the_default_source_is_socketcan_on_can0_with_the_shipped_hub_layout() -
     config = parse_config("", "t")
     source = open_source(config)
     try:
-        assert isinstance(source, CanSource) and isinstance(source.port, SocketcanBusPort)
-        assert (source.port.channel, source.port.receive_buffer_bytes) == ("can0", 1048576)
+        assert isinstance(source, CanSource) and isinstance(source.port, CanBusPort)
+        assert (source.port.kind, source.port.channel, source.port.receive_buffer_bytes) == ("socketcan", "can0", 1048576)
         assert source.layout.name == "hub" and source.layout.source == "shipped bogiemon.dbc"
         assert source.fs_hz == 500.0 and source.max_block_n == 500
         if not source.connected:  # as here: no can0 (nor SocketCAN); the source retries, never raises
@@ -32,7 +35,8 @@ def test_the_default_source_is_socketcan_on_can0_with_the_shipped_hub_layout() -
 def test_a_virtual_per_node_can_source_from_the_config() -> None:
     config = parse_config('[source]\ninterface = "virtual"\nchannel = "cfg-test"\nlayout = "per-node"\nmax_block_s = 0.2\n', "t")
     with open_source(config) as source:
-        assert isinstance(source.port, VirtualBusPort) and source.connected
+        assert isinstance(source.port, CanBusPort) and (source.port.kind, source.port.channel) == ("virtual", "cfg-test")
+        assert source.connected
         assert source.layout.name == "per-node" and source.max_block_n == 100
 
 
@@ -50,6 +54,36 @@ def test_replay_sources_from_the_config(tmp_path: Path) -> None:
     log = open_source(parse_config(f'[source]\nkind = "replay"\npath = "{tmp_path}/run.log"\n', "t"))
     assert isinstance(log, CanLogReplaySource) and log.rate == 1.0
     log.close()
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["", '[source]\nkind = "serial"\n', '[source]\nkind = "replay"\npath = "x.csv"\n', '[source]\nkind = "simulated"\n'],
+)
+def test_every_source_kind_the_config_accepts_has_an_opener(text: str) -> None:
+    assert type(parse_config(text, "t").source) in OPENERS
+
+
+def test_a_source_model_without_an_opener_is_an_internal_error_naming_it() -> None:
+    class UsbSourceConfig(BaseModel):
+        kind: str = "usb"
+
+    config = parse_config("", "t").model_copy(update={"source": UsbSourceConfig()})
+    with pytest.raises(TypeError, match=r"^\[source\] kind 'usb' \(UsbSourceConfig\) has no opener in daemon/sources.py OPENERS$"):
+        open_source(config)
+
+
+def test_opening_a_can_source_never_imports_the_simulator() -> None:
+    code = (
+        "import sys\n"
+        "from bogiemon.daemon.config import parse_config\n"
+        "from bogiemon.daemon.sources import open_source\n"
+        "open_source(parse_config('[source]\\ninterface = \"virtual\"\\n', 't')).close()\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('bogiemon.simulator', 'bogiemon.daemon.simsource'))))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "[]\n"
 
 
 def test_a_bad_dbc_in_the_config_is_a_user_error(tmp_path: Path) -> None:
