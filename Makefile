@@ -18,8 +18,10 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m bogiemon.daemon.cli.main demo
 
+# First the house's import contract (tests/house.py: the layers in pyproject.toml), then pytest.
 # pytest exits 5 when it collects no tests: that is a failure here, never a pass.
 test: $(STAMP) system-deps
+	$(PY) tests/house.py
 	$(PY) -m pytest; status=$$?; \
 	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
 	exit $$status

@@ -11,6 +11,33 @@ FS_HZ = 100.0
 GRAVITY_MPS2 = 9.81
 
 
+def short_windows_config(clear_after_windows: int | None = None, state_dir: object | None = None) -> str:
+    """The daemon tests' config text: short windows over these synthetic signals, the threshold
+    method on I4n with a fixed load, and the structure checks off. One copy for every test that
+    runs the monitor, the service or replay on them (the `short_config` fixture writes it)."""
+    clear = f"clear_after_windows = {clear_after_windows}\n" if clear_after_windows is not None else ""
+    state = f'[state]\ndirectory = "{state_dir}"\n' if state_dir is not None else ""
+    return f"""
+[processing]
+fs_hz = {FS_HZ}
+window_s = 6.0
+hop_s = 2.0
+max_lag_s = 1.0
+[health]
+# White-noise modes have none of a bogie frame's structure: no structure checks on them.
+structure_checks = false
+[decision]
+# These tests exercise the machinery with short windows: the per-indicator method, fixed load.
+method = "thresholds"
+load = "full"
+confirm_k = 2
+confirm_n = 3
+{clear}[decision.thresholds.full.i4_norm]
+warning = 0.2
+alarm = 0.3
+{state}"""
+
+
 def bogie_accel(duration_s: float, seed: int, pitch_roll_coupling: float = 0.0, scale: float = 1.0) -> np.ndarray:
     """(n, 3) sensor accelerations with gravity; pitch = noise + coupling * roll."""
     rng = np.random.default_rng(seed)

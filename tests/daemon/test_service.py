@@ -9,50 +9,21 @@ from bogiemon.daemon.service import Service
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.base import MemorySource
-from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel
+from tests.daemon.synthetic import as_blocks, bogie_accel
 
 
 class FiniteMemorySource(MemorySource):
     finite = True  # a recording: the ring waits instead of dropping
 
 
-def write_config(tmp_path: Path) -> Path:
-    path = tmp_path / "bogiemon.toml"
-    path.write_text(
-        f"""
-[processing]
-fs_hz = {FS_HZ}
-window_s = 6.0
-hop_s = 2.0
-max_lag_s = 1.0
-[health]
-# White-noise modes have none of a bogie frame's structure: no structure checks on them.
-structure_checks = false
-[decision]
-# These tests exercise the machinery with short windows: the per-indicator method, fixed load.
-method = "thresholds"
-load = "full"
-confirm_k = 2
-confirm_n = 3
-[decision.thresholds.full.i4_norm]
-warning = 0.2
-alarm = 0.3
-[state]
-directory = "{tmp_path / 'state'}"
-"""
-    )
-    return path
-
-
-def test_service_runs_a_finite_source_to_its_end_and_reports_to_systemd(tmp_path: Path) -> None:
+def test_service_runs_a_finite_source_to_its_end_and_reports_to_systemd(tmp_path: Path, short_config: Path) -> None:
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     listener.bind(str(tmp_path / "notify"))
     listener.settimeout(0)
     notifier = Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "2000000"})
     blocks = as_blocks(bogie_accel(30, seed=2, pitch_roll_coupling=1.0))
     sink = MemorySink()
-    config_path = write_config(tmp_path)
-    service = Service(config_path, lambda config: FiniteMemorySource(blocks), notifier=notifier, sinks=[sink])
+    service = Service(short_config, lambda config: FiniteMemorySource(blocks), notifier=notifier, sinks=[sink])
     assert service.run() == 0
     messages = []
     while True:
@@ -63,5 +34,5 @@ def test_service_runs_a_finite_source_to_its_end_and_reports_to_systemd(tmp_path
     assert any(m.startswith("READY=1") for m in messages)
     assert messages[-1] == "STOPPING=1"
     assert [e.kind.value for e in sink.events] == ["SUSPECTED", "CONFIRMED"]
-    stored = EventStore(parse_config(config_path.read_text(), "t").state.directory, readonly=True).events()
+    stored = EventStore(parse_config(short_config.read_text(), "t").state.directory, readonly=True).events()
     assert stored == sink.events
