@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from bogiemon.daemon.analysis import recording_settings
 from bogiemon.daemon.config import (
     BogiemonConfig,
     CanSourceConfig,
@@ -21,6 +22,7 @@ from bogiemon.daemon.config import (
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import load_layout
+from bogiemon.drivers.recording import RecordingError
 from bogiemon.drivers.replay import open_replay
 from bogiemon.drivers.serial_source import SerialSource
 
@@ -59,9 +61,16 @@ def _open_simulated(src: SimulatedSourceConfig, config: BogiemonConfig) -> Sourc
 def _open_replay(src: ReplaySourceConfig, config: BogiemonConfig) -> Source:
     is_csv = src.path.lower().endswith(".csv")
     layout = None if is_csv else load_layout(src.dbc_path or None, src.layout)
-    return open_replay(
+    source = open_replay(
         src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s
     )
+    if is_csv:  # a CSV brings its own rate: one the config cannot run at is refused here, in one line
+        try:
+            recording_settings(src.path, source.fs_hz, config)
+        except RecordingError:
+            source.close()
+            raise
+    return source
 
 
 OPENERS: Mapping[type, Opener] = {

@@ -18,6 +18,8 @@ NaN when a signal is exactly zero over the window (a dead channel).
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,9 +33,26 @@ from bogiemon.detection.spectra import WindowedSpectra, WindowSpectra
 from bogiemon.detection.xcorr import StreamingCrossCorrelator, WindowCorrelations
 
 
+# Sample rates the core accepts: below 1 Hz no filter or window of the method fits, above 100 kHz
+# is no accelerometer stream of a bogie (the method needs 0.5-10 Hz; sensors run at 0.1-5 kHz).
+MIN_FS_HZ = 1.0
+MAX_FS_HZ = 100_000.0
+MAX_FILTER_ORDER = 32  # Butterworth sections beyond this lose their precision in float64
+# Below fs_hz * 1e-6 a Butterworth section's poles round to 1 in float64 and the filter returns NaN.
+MIN_CUTOFF_FRACTION = 1e-6
+# What the correlator keeps per window, in samples: hops per window x (hop + lags) of cross-
+# spectra, 64 bytes each (detection/xcorr.py), so at most 256 MiB. 120 s windows every 10 s with
+# 10 s lags at 500 Hz hold 120 000; the bound stops settings that would exhaust a gateway's memory.
+MAX_CORRELATOR_SAMPLES = 1 << 22
+
+
 @dataclass(frozen=True)
 class ProcessingSettings:
-    """How the accelerations are conditioned and windowed. Times in seconds, rates in hertz."""
+    """How the accelerations are conditioned and windowed. Times in seconds, rates in hertz.
+
+    Settings the core cannot run raise ValueError when built, naming the setting and the bound,
+    so that valid settings always build an IndicatorStream.
+    """
 
     fs_hz: float = 500.0
     window_s: float = 120.0
@@ -43,6 +62,59 @@ class ProcessingSettings:
     highpass_order: int = 2
     lowpass_hz: float = 10.0
     lowpass_order: int = 4
+
+    def __post_init__(self) -> None:
+        for name in ("fs_hz", "window_s", "hop_s", "max_lag_s", "highpass_hz", "lowpass_hz"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+        for name in ("highpass_order", "lowpass_order"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= value <= MAX_FILTER_ORDER:
+                raise ValueError(f"{name} must be a whole number from 1 to {MAX_FILTER_ORDER}, got {value!r}")
+        fs = self.fs_hz
+        if not MIN_FS_HZ <= fs <= MAX_FS_HZ:
+            raise ValueError(f"fs_hz {fs:g} Hz is outside the sample rates the core handles, {MIN_FS_HZ:g} to {MAX_FS_HZ:g} Hz")
+        nyquist_hz = fs / 2.0
+        for name in ("highpass_hz", "lowpass_hz"):
+            cutoff_hz = getattr(self, name)
+            if not 0.0 < cutoff_hz < nyquist_hz:
+                raise ValueError(f"{name} ({cutoff_hz:g} Hz) must lie between 0 and Nyquist (fs_hz / 2 = {nyquist_hz:g} Hz)")
+            if cutoff_hz < MIN_CUTOFF_FRACTION * fs:
+                raise ValueError(
+                    f"{name} ({cutoff_hz:g} Hz) is below fs_hz x {MIN_CUTOFF_FRACTION:g} = {MIN_CUTOFF_FRACTION * fs:g} Hz: "
+                    "the filter cannot be computed in double precision"
+                )
+        if self.window_s <= 0 or self.hop_s <= 0 or self.max_lag_s < 0:
+            raise ValueError(
+                f"window_s and hop_s must be positive and max_lag_s not negative, got {self.window_s:g}, {self.hop_s:g}, {self.max_lag_s:g}"
+            )
+        for name in ("window_s", "hop_s", "max_lag_s"):  # in samples before rounding: inf or 1e300 never reaches int()
+            duration_s = getattr(self, name)
+            if not duration_s * fs <= MAX_CORRELATOR_SAMPLES:
+                raise ValueError(
+                    f"{name} ({duration_s:g} s) is {duration_s * fs:.3g} samples at {fs:g} Hz, more than the "
+                    f"{MAX_CORRELATOR_SAMPLES} the core allows"
+                )
+        window_n, hop_n, lag_n = self.window_n, self.hop_n, self.max_lag_n
+        if hop_n < 2:
+            raise ValueError(f"hop_s ({self.hop_s:g} s) is {hop_n} sample(s) at {fs:g} Hz: a hop needs at least 2 samples")
+        if window_n < hop_n or window_n % hop_n:
+            raise ValueError(
+                f"window {self.window_s:g} s must be a whole number of hops ({self.hop_s:g} s): at {fs:g} Hz "
+                f"that is {window_n} samples and hops of {hop_n}"
+            )
+        if lag_n >= window_n:
+            raise ValueError(
+                f"max_lag_s ({self.max_lag_s:g} s, {lag_n} samples at {fs:g} Hz) must be shorter than the window ({window_n} samples)"
+            )
+        held_n = (window_n // hop_n) * (hop_n + lag_n)
+        if held_n > MAX_CORRELATOR_SAMPLES:
+            raise ValueError(
+                f"windows of {self.window_s:g} s every {self.hop_s:g} s with lags of {self.max_lag_s:g} s at {fs:g} Hz hold "
+                f"{held_n} samples of cross-spectra, more than the {MAX_CORRELATOR_SAMPLES} the core allows: "
+                "use fewer hops per window, shorter lags or a lower rate"
+            )
 
     def samples(self, duration_s: float) -> int:
         """A duration in whole samples at fs_hz (rounded to the nearest)."""
@@ -121,9 +193,7 @@ class IndicatorStream:
         start_s: float = 0.0,
         clip_level_mps2: float = np.inf,
     ) -> None:
-        if settings.window_n % settings.hop_n:
-            raise ValueError(f"window_s ({settings.window_s}) must be a whole number of hops ({settings.hop_s} s)")
-        self.settings = settings
+        self.settings = settings  # valid by construction (ProcessingSettings.__post_init__)
         self.geometry = geometry
         self._to_modal = geometry.modal_matrix().T
         self._highpass = StreamingSOS(

@@ -8,6 +8,7 @@ sensors' status bits. Nothing downstream ever sees a byte or a frame.
 from __future__ import annotations
 
 import enum
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
 
@@ -24,6 +25,18 @@ class SensorStatus(enum.IntFlag):
 
 
 ALL_OK: tuple[SensorStatus, SensorStatus, SensorStatus] = (SensorStatus.OK,) * 3
+
+# Time stamps a source accepts, in seconds from any origin: Unix time (candump -L, .blf, the
+# kernel's receive stamps), or from a log's or a clock's start (.asc, an uptime, a CSV's own
+# origin). What is not finite or lies beyond the year 2100 as Unix time either way is no clock's
+# reading: the frame or row carrying it is counted and skipped (or the file refused), so nothing
+# downstream, and no event in the store, ever has such a time.
+MAX_TIME_S = 4_102_444_800.0  # 2100-01-01T00:00:00Z
+
+
+def plausible_time(time_s: float) -> bool:
+    """Whether time_s is a time stamp a source may pass on (finite, within +/-MAX_TIME_S)."""
+    return -MAX_TIME_S <= time_s <= MAX_TIME_S  # False for NaN too
 
 
 @dataclass(frozen=True)
@@ -46,6 +59,13 @@ class Block:
     def __post_init__(self) -> None:
         if self.accel_mps2.ndim != 2 or self.accel_mps2.shape[1] != 3:
             raise ValueError(f"a block holds (n, 3) samples, got shape {self.accel_mps2.shape}")
+        # The sources validate time stamps where they read them (a segment's samples may then run
+        # past MAX_TIME_S by its length); a block past that with a time or rate that is not
+        # finite is a bug in a driver, and must not reach windows and events.
+        if not math.isfinite(self.start_s):
+            raise ValueError(f"a block starts at {self.start_s!r} s: a time must be finite")
+        if not (math.isfinite(self.fs_hz) and self.fs_hz > 0):
+            raise ValueError(f"a block is sampled at {self.fs_hz!r} Hz: the rate must be finite and positive")
 
     @property
     def n_samples(self) -> int:
@@ -62,7 +82,7 @@ class HealthCounters:
     """Monotonic counters a source keeps about its input; read them, never reset them."""
 
     frames: int = 0  # frames, packets or rows accepted
-    bad_frames: int = 0  # rejected: wrong length, bad CRC, undecodable, unknown id
+    bad_frames: int = 0  # rejected: wrong length, bad CRC, undecodable, unknown id, unusable time stamp
     gaps: int = 0  # discontinuities passed downstream as gap_before
     timeouts: int = 0  # read() calls that returned nothing in time
     reconnects: int = 0  # times the device or bus was reopened

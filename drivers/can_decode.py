@@ -7,7 +7,10 @@ counter and hands the accepted samples to a SampleQueue. It never raises for wha
 
 Every received frame lands in exactly one of: counters.frames (well-formed frames of the layout,
 the Sync included, even those the counter check then drops as duplicates or out of order),
-counters.bad_frames (unknown identifier, wrong length, remote frame) or extra["error_frames"].
+counters.bad_frames (an unusable time stamp, an unknown or impossible identifier, wrong length,
+remote frame) or extra["error_frames"]. Receive times pass a TimestampGuard (drivers/segments.py)
+first, so a frame whose time stamp is not finite, absurd or behind its predecessors never
+anchors a segment; identifiers beyond 29 bits (11 for a standard frame) are unknown ones.
 """
 
 from __future__ import annotations
@@ -20,18 +23,20 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
 from bogiemon.drivers.candb import CAN_EFF_KEY, CanLayout, MessageCodec
-from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker
+from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker, TimestampGuard
 
 # Error classes in the identifier of a SocketCAN error frame (linux/can/error.h).
 CAN_ERR_CRTL = 0x004  # controller problem, details in data[1]
 CAN_ERR_BUSOFF = 0x040
 CAN_ERR_CRTL_RX_OVERFLOW = 0x01  # data[1]: the controller's receive FIFO overflowed
+CAN_STD_ID_MAX = 0x7FF  # the largest 11-bit identifier
+CAN_EXT_ID_MAX = 0x1FFFFFFF  # the largest 29-bit identifier
 
 CAN_COUNTERS = (
     "duplicates",  # a frame with the counter of the one just accepted: dropped
     "out_of_order",  # a frame whose counter is behind the last accepted one: dropped
     "lost_samples",  # sampling instants missing inside counter jumps (a lower bound)
-    "unknown_ids",  # frames whose identifier is in no message of the DBC (also bad_frames)
+    "unknown_ids",  # frames whose identifier is in no message of the DBC, or no CAN identifier (also bad_frames)
     "other_dbc_frames",  # frames of the DBC's other messages (alarms, heartbeats): expected, ignored
     "wrong_length",  # a layout identifier with the wrong data length (also bad_frames)
     "remote_frames",  # remote-request frames (also bad_frames)
@@ -65,6 +70,8 @@ class CanFrameDecoder:
         # Half a counter period: beyond it a counter jump is ambiguous (see SequenceTracker).
         max_silence_s = (modulus // 2 - 1) / fs_hz
         self._keys = {m.key: m for m in layout.messages}
+        self._other_keys = np.fromiter(layout.other_keys, np.int64, len(layout.other_keys))
+        self._guard = TimestampGuard(counters)
         self._tracker = SequenceTracker(modulus, max_silence_s)
         self._aligner = NodeAligner(modulus, max_silence_s) if layout.name == "per-node" else None
 
@@ -102,9 +109,14 @@ class CanFrameDecoder:
     def _feed_frames(self, messages: Sequence[can.Message]) -> None:
         if not messages:
             return
-        keys = np.fromiter(
-            (m.arbitration_id | (CAN_EFF_KEY if m.is_extended_id else 0) for m in messages), np.int64, len(messages)
-        )
+        times_s = _times_of(messages)
+        passed = self._guard.check(times_s)  # counts what it rejects
+        if not passed.all():
+            messages = [m for m, ok in zip(messages, passed.tolist(), strict=True) if ok]
+            times_s = times_s[passed]
+            if not messages:
+                return
+        keys = _keys_of(messages)
         remote = np.fromiter((m.is_remote_frame for m in messages), bool, len(messages))
         lengths = np.fromiter((len(m.data) for m in messages), np.int64, len(messages))
         n_remote = int(remote.sum())
@@ -123,7 +135,7 @@ class CanFrameDecoder:
                 self.counters.bad_frames += n_wrong
             good[key] = np.flatnonzero(ok)
             self.counters.frames += good[key].size
-        other = np.isin(keys, np.fromiter(self.layout.other_keys, np.int64, len(self.layout.other_keys))) & ~remote
+        other = np.isin(keys, self._other_keys) & ~remote
         n_other = int((other & ~known).sum())
         if n_other:
             self.counters.add("other_dbc_frames", n_other)
@@ -132,20 +144,16 @@ class CanFrameDecoder:
             self.counters.add("unknown_ids", n_unknown)
             self.counters.bad_frames += n_unknown
         if self.layout.hub is not None:
-            self._feed_hub(messages, good[self.layout.hub.key])
+            self._feed_hub(messages, good[self.layout.hub.key], times_s)
         else:
-            self._feed_nodes(messages, good)
+            self._feed_nodes(messages, good, times_s)
 
     @staticmethod
     def _payloads(messages: Sequence[can.Message], index: NDArray[np.intp], codec: MessageCodec) -> NDArray[np.uint8]:
         raw = b"".join([messages[i].data for i in index.tolist()])
         return np.frombuffer(raw, dtype=np.uint8).reshape(index.size, codec.length)
 
-    @staticmethod
-    def _times(messages: Sequence[can.Message], index: NDArray[np.intp]) -> NDArray[np.float64]:
-        return np.fromiter((messages[i].timestamp for i in index.tolist()), np.float64, index.size)
-
-    def _feed_hub(self, messages: Sequence[can.Message], index: NDArray[np.intp]) -> None:
+    def _feed_hub(self, messages: Sequence[can.Message], index: NDArray[np.intp], all_times_s: NDArray[np.float64]) -> None:
         if index.size == 0:
             return
         codec = self.layout.hub
@@ -153,7 +161,7 @@ class CanFrameDecoder:
         le, be = codec.words(self._payloads(messages, index, codec))
         sig = codec.signals
         counter = sig["Counter"].raw(le, be)
-        times_s = self._times(messages, index)
+        times_s = all_times_s[index]
         verdict = self._tracker.check(counter, times_s)
         self._count_verdict(verdict.duplicates, verdict.out_of_order, verdict.lost)
         keep = verdict.accept
@@ -166,7 +174,9 @@ class CanFrameDecoder:
         )
         self.queue.append(accel, status, verdict.new_segment[keep], times_s[keep])
 
-    def _feed_nodes(self, messages: Sequence[can.Message], good: dict[int, NDArray[np.intp]]) -> None:
+    def _feed_nodes(
+        self, messages: Sequence[can.Message], good: dict[int, NDArray[np.intp]], all_times_s: NDArray[np.float64]
+    ) -> None:
         assert self._aligner is not None
         parts = []
         for channel, codec in enumerate(self.layout.nodes):
@@ -192,7 +202,7 @@ class CanFrameDecoder:
         counter = np.concatenate([p[2] for p in parts])[order]
         value = np.concatenate([p[3] for p in parts])[order]
         status = np.concatenate([p[4] for p in parts])[order]
-        out = self._aligner.push(channel, counter, value, status, self._times(messages, index))
+        out = self._aligner.push(channel, counter, value, status, all_times_s[index])
         self._count_verdict(out.duplicates, out.out_of_order, out.lost)
         self.queue.append(out.accel_mps2, out.status, out.new_segment, out.times_s)
 
@@ -203,6 +213,41 @@ class CanFrameDecoder:
             self.counters.add("out_of_order", out_of_order)
         if lost:
             self.counters.add("lost_samples", lost)
+
+
+def _times_of(messages: Sequence[can.Message]) -> NDArray[np.float64]:
+    """The frames' receive times in seconds; NaN for a stamp that is not a number (the guard drops it)."""
+    try:
+        return np.fromiter((m.timestamp for m in messages), np.float64, len(messages))
+    except (TypeError, ValueError, OverflowError):
+        return np.array([_as_float(m.timestamp) for m in messages], dtype=np.float64)
+
+
+def _as_float(value: object) -> float:
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        return float("nan")
+
+
+def _keys_of(messages: Sequence[can.Message]) -> NDArray[np.int64]:
+    """Frame keys (identifier | CAN_EFF_KEY for 29-bit ones); -1 for an identifier no CAN frame can carry.
+
+    python-can's readers take identifiers as written: an .asc line may hold one too large for a
+    C long, and a standard frame's beyond 11 bits would alias a 29-bit key.
+    """
+    n = len(messages)
+    extended = np.fromiter((bool(m.is_extended_id) for m in messages), bool, n)
+    try:
+        ids = np.fromiter((m.arbitration_id for m in messages), np.int64, n)
+    except (TypeError, ValueError, OverflowError):
+        ids = np.fromiter((_id_or_minus_one(m.arbitration_id) for m in messages), np.int64, n)
+    valid = (ids >= 0) & (ids <= np.where(extended, CAN_EXT_ID_MAX, CAN_STD_ID_MAX))
+    return np.where(valid, ids | np.where(extended, CAN_EFF_KEY, 0), -1)
+
+
+def _id_or_minus_one(arbitration_id: object) -> int:
+    return arbitration_id if isinstance(arbitration_id, int) and 0 <= arbitration_id <= CAN_EXT_ID_MAX else -1
 
 
 class AlignedSamples:

@@ -3,7 +3,12 @@
 Format: a first line exactly `time_s,a1,a2,a3`, then one row per sampling instant: the time in
 seconds from any origin, and the three vertical accelerations in m/s^2 (with or without gravity).
 Rows are uniformly sampled and strictly increasing in time; the sample rate is inferred from
-time_s. A recording with a gap is two recordings.
+time_s. A recording with a gap is two recordings. Times are plausible ones (drivers/base.py:
+finite, within +/-MAX_TIME_S) and the rate finite.
+
+A bad row is an error naming its line, never a skipped one: the rows are one uniform time axis,
+so a row left out would shift every later sample by a period without a trace. A file cut in the
+middle of a UTF-8 character (a logger killed mid-write) is such a bad row.
 
 Reading is vectorised (numpy's C parser); only when the fast path finds a problem is the file
 scanned line by line, to name the exact line in the error.
@@ -20,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.base import Block
+from bogiemon.drivers.base import MAX_TIME_S, Block
 
 HEADER = "time_s,a1,a2,a3"
 # A time step may deviate this much (relative) from the file's median step: enough for times
@@ -73,12 +78,14 @@ def read_csv_recording(path: str | Path, min_samples: int = 2) -> Recording:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
                     data = np.loadtxt(f, delimiter=",", dtype=np.float64, ndmin=2, comments=None)
+            except UnicodeDecodeError:  # a ValueError too: numpy's parser passes it on
+                _raise_not_utf8(path)
             except ValueError as exc:
                 data, parse_error = None, str(exc)
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read the recording: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise RecordingError(f"{path}: not a text file: expected a CSV recording with header '{HEADER}'") from None
+    except UnicodeDecodeError:  # text is decoded by the chunk: this may be any of the first lines
+        _raise_not_utf8(path)
 
     if data is None or data.shape[1] != 4:
         _raise_first_bad_line(path, parse_error)
@@ -90,6 +97,13 @@ def read_csv_recording(path: str | Path, min_samples: int = 2) -> Recording:
         raise RecordingError(f"{path}: holds {n} sample(s); a recording needs at least two rows after the header")
 
     time_s = np.ascontiguousarray(data[:, 0])
+    far = np.flatnonzero(np.abs(time_s) > MAX_TIME_S)
+    if far.size:
+        row = int(far[0])
+        raise RecordingError(
+            f"{path}: line {_line_of_row(path, row)}: time_s {float(time_s[row])!r} is no plausible time "
+            f"(beyond +/-{MAX_TIME_S:.0f} s, the year 2100 as Unix time): time_s must be in seconds"
+        )
     dt_s = np.diff(time_s)
     bad = np.flatnonzero(dt_s <= 0.0)
     if bad.size:
@@ -107,13 +121,18 @@ def read_csv_recording(path: str | Path, min_samples: int = 2) -> Recording:
             f"{step_s:.6g} s ({1.0 / step_s:.6g} Hz); recordings must be uniformly sampled: split the file at the gap"
         )
     # The mean step over the whole file is far more precise than any single printed step.
-    fs_hz = (n - 1) / (time_s[-1] - time_s[0])
+    with np.errstate(over="ignore"):
+        fs_hz = float((n - 1) / (time_s[-1] - time_s[0]))
+    if not np.isfinite(fs_hz):
+        raise RecordingError(
+            f"{path}: time steps of {step_s:.6g} s give no finite sample rate: time_s must be in seconds"
+        )
     if n < min_samples:
         raise RecordingError(
             f"{path}: {n} samples ({n / fs_hz:.1f} s) is shorter than one analysis window "
             f"({min_samples} samples, {min_samples / fs_hz:.1f} s): use a longer recording or a shorter window_s"
         )
-    return Recording(path=path, time_s=time_s, accel_mps2=np.ascontiguousarray(data[:, 1:]), fs_hz=float(fs_hz))
+    return Recording(path=path, time_s=time_s, accel_mps2=np.ascontiguousarray(data[:, 1:]), fs_hz=fs_hz)
 
 
 def write_csv_recording(path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64]) -> None:
@@ -148,6 +167,23 @@ def _line_of_row(path: Path, row: int) -> int:
         if i == row:
             return number
     raise AssertionError(f"row {row} not found in {path}")  # pragma: no cover - rows come from the file
+
+
+def _raise_not_utf8(path: Path) -> None:
+    """Raise for the first line that is not UTF-8 text (the header decoded, so a data line)."""
+    with path.open("rb") as f:
+        for number, raw in enumerate(f, start=1):
+            try:
+                raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                if number == 1:
+                    raise RecordingError(f"{path}: not a text file: expected a CSV recording with header '{HEADER}'") from None
+                cut = " (cut in the middle of a character: the file is truncated)" if exc.reason == "unexpected end of data" else ""
+                raise RecordingError(
+                    f"{path}: line {number}: not UTF-8 text, byte 0x{raw[exc.start]:02x} at column {exc.start + 1}{cut}; "
+                    "remove or repair the line"
+                ) from None
+    raise RecordingError(f"{path}: not UTF-8 text: expected a CSV recording with header '{HEADER}'")  # pragma: no cover
 
 
 def _raise_first_bad_line(path: Path, parse_error: str) -> None:

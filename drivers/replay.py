@@ -3,11 +3,19 @@
 CSV recordings (drivers/recording.py) come back as they were written: the block times are the
 file's time_s. CAN logs are anything python-can reads by suffix (candump -L .log, Vector .asc
 and .blf, ...), decoded with the DBC through the same CanFrameDecoder as the live CAN source, so
-a log with lost, repeated or foreign frames is counted and segmented exactly as on the bus; the
-block times come from the log's time stamps (absolute in .log and .blf, from 0 in .asc).
+a log with lost, repeated or foreign frames, or frames with unusable time stamps, is counted and
+segmented exactly as on the bus; the block times come from the log's time stamps (absolute in
+.log and .blf, from 0 in .asc).
+
+A line python-can cannot parse is counted (bad_frames and extra["unreadable_entries"]) and
+skipped: the text logs (.log, .asc) are read on from the next line. A binary log (.blf) and the
+other formats cannot be resynchronised: the replay ends at the unreadable entry, counted, with
+last_error saying so.
 
 rate 1 paces the samples at real time (a sample is delivered once its time, counted from the
 first read(), has come); rate N is N times faster; rate 0 delivers as fast as the caller reads.
+Pacing follows only plausible time stamps and replays a silence longer than MAX_PACED_PAUSE_S
+as that long: a stamp from next century never stalls a replay.
 """
 
 from __future__ import annotations
@@ -15,15 +23,22 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TextIO
 
 import can
 import numpy as np
 
-from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source
+from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source, plausible_time
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.recording import RecordingError, read_csv_recording
 from bogiemon.drivers.segments import SampleQueue
+
+# The longest silence of a CAN log a paced replay waits out (a wagon standing at a station, or a
+# stamp far ahead of its neighbours): the decoder starts a new segment after a pause of half a
+# counter period whatever its length, so waiting longer would change nothing but the wall time.
+MAX_PACED_PAUSE_S = 10.0
+REPLAY_COUNTERS = ("unreadable_entries",)  # log entries python-can could not parse (also bad_frames)
 
 
 class CsvReplaySource(Source):
@@ -110,25 +125,25 @@ class CanLogReplaySource(Source):
         self.layout = layout
         self.rate = rate
         self.counters = HealthCounters()
+        for name in REPLAY_COUNTERS:
+            self.counters.extra[name] = 0
         self.max_block_n = max(1, round(max_block_s * fs_hz))
         self._clock = clock
         self._sleep = sleep
         self._queue = SampleQueue(fs_hz)
         self._decoder = CanFrameDecoder(layout, fs_hz, self.counters, self._queue)
-        try:
-            self._reader = can.LogReader(str(self.path))
-        except ValueError:  # python-can names no reader for the suffix
-            raise RecordingError(
-                f"{self.path}: not a recording bogiemon replays: use a .csv recording or a CAN log "
-                "(.log from candump -L, .asc, .blf)"
-            ) from None
-        except OSError as exc:
-            raise RecordingError(f"{self.path}: cannot read the CAN log: {exc.strerror or exc}") from None
-        self._frames: Iterator[can.Message] = iter(self._reader)
+        self._entries = _LogEntries(self.path, self._unreadable)
+        self._frames: Iterator[can.Message] = iter(self._entries)
         self._peeked: can.Message | None = None
         self._ended = False
-        self._first_log_s: float | None = None
+        self._first_log_s: float | None = None  # pacing: the log time that maps to _start_wall_s
+        self._paced_log_s = 0.0  # pacing: the latest plausible log time seen
         self._start_wall_s = 0.0
+
+    def _unreadable(self, message: str) -> None:
+        self.counters.bad_frames += 1
+        self.counters.add("unreadable_entries")
+        self.last_error = message
 
     def _peek(self) -> can.Message | None:
         if self._peeked is None and not self._ended:
@@ -136,20 +151,28 @@ class CanLogReplaySource(Source):
                 self._peeked = next(self._frames)
             except StopIteration:
                 self._ended = True
-            except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad line
-                # The reader cannot go on past a line it fails on: count it, end the stream there.
-                self.counters.bad_frames += 1
-                self.last_error = f"{self.path}: unreadable CAN log entry, replay ends here: {exc}"
-                self._ended = True
         return self._peeked
 
     def _due(self, message: can.Message) -> bool:
         if self.rate == 0:
             return True
+        time_s = message.timestamp
+        if not (isinstance(time_s, float | int) and plausible_time(time_s)):
+            return True  # the decoder counts and drops it; it must not pace anything
         if self._first_log_s is None:
-            self._first_log_s = message.timestamp
+            self._first_log_s = self._paced_log_s = float(time_s)
             self._start_wall_s = self._clock()
-        return (message.timestamp - self._first_log_s) / self.rate <= self._clock() - self._start_wall_s
+        step_s = time_s - self._paced_log_s
+        if step_s > MAX_PACED_PAUSE_S:  # replay a long silence as MAX_PACED_PAUSE_S
+            self._first_log_s += step_s - MAX_PACED_PAUSE_S
+        elif step_s < 0:  # a stamp behind: due with its predecessor, and the pace goes on from it
+            self._first_log_s += step_s
+        self._paced_log_s = float(time_s)
+        return self._due_wall_s(float(time_s)) <= self._clock()
+
+    def _due_wall_s(self, time_s: float) -> float:
+        assert self._first_log_s is not None
+        return self._start_wall_s + (time_s - self._first_log_s) / self.rate
 
     def read(self, timeout_s: float) -> Block | None:
         deadline = self._clock() + timeout_s
@@ -170,11 +193,8 @@ class CanLogReplaySource(Source):
             left_s = deadline - self._clock()
             if left_s <= 0:
                 break
-            message = self._peek()
-            if message is not None:
-                assert self._first_log_s is not None
-                due_wall_s = self._start_wall_s + (message.timestamp - self._first_log_s) / self.rate
-                self._sleep(max(1e-4, min(left_s, due_wall_s - self._clock())))
+            if self._peeked is not None:  # not yet due: _due has mapped its time to the wall clock
+                self._sleep(max(1e-4, min(left_s, self._due_wall_s(self._paced_log_s) - self._clock())))
         block = self._queue.take(self.max_block_n)
         self.counters.gaps = self._queue.gaps
         if block is None:
@@ -184,7 +204,113 @@ class CanLogReplaySource(Source):
         return block
 
     def close(self) -> None:
-        self._reader.stop()
+        self._entries.close()
+
+
+class _ResumedAscReader(can.ASCReader):
+    """An ASCReader reading on where another one failed, with the header settings that one read."""
+
+    def __init__(self, file: TextIO, failed: can.ASCReader) -> None:
+        # The failed reader's base comes from the file's header, in any case ("base HEX" parses):
+        # the constructor takes only "hex" or "dec"; anything else falls back to its default.
+        base = str(failed.base).lower()
+        super().__init__(file, base=base if base in ("hex", "dec") else "hex", relative_timestamp=failed.relative_timestamp)
+        self.date = failed.date
+        self.start_time = failed.start_time
+        self.timestamps_format = failed.timestamps_format
+        self.internal_events_logged = failed.internal_events_logged
+
+    def _extract_header(self) -> None:
+        """The header was read by the reader this one resumes; here it would swallow a frame line."""
+
+
+class _CheckedBlfReader(can.BLFReader):
+    """A BLFReader that refuses an object shorter than its own header instead of spinning on it.
+
+    python-can's BLF parser advances by each object's declared size: one of size 0 (a corrupt or
+    zeroed object) keeps it on the same spot forever, yielding the same frame or logging the
+    same warning without end. Each container is walked by the sizes first, as the parser will
+    walk it: the objects before one declaring less than a header are parsed, then BLFParseError.
+    """
+
+    def _parse_data(self, data: bytes) -> Iterator[can.Message]:
+        header = can.io.blf.OBJ_HEADER_BASE_STRUCT
+        pos = 0
+        while pos + header.size <= len(data):
+            found = data.find(b"LOBJ", pos, pos + 8)
+            if found < 0 or found + header.size > len(data):
+                break  # the parser raises for the one, keeps the other for the next container
+            obj_size = header.unpack_from(data, found)[3]
+            if obj_size < header.size:
+                yield from super()._parse_data(data[:found])
+                raise can.io.blf.BLFParseError(f"an object of a container declares {obj_size} bytes")
+            pos = found + obj_size
+        yield from super()._parse_data(data)
+
+
+class _LogEntries:
+    """The messages of a CAN log; an entry python-can cannot parse is reported and skipped.
+
+    Text logs are opened here (UTF-8, undecodable bytes replaced, so a bad byte spoils only its
+    own line) and a fresh reader goes on over the same file object from the line after the one
+    its predecessor failed on. A binary log cannot be resynchronised: the messages end there.
+    """
+
+    RESUMABLE = (".log", ".asc")
+
+    def __init__(self, path: Path, on_unreadable: Callable[[str], None]) -> None:
+        self.path = path
+        self._on_unreadable = on_unreadable
+        self._file: TextIO | None = None
+        suffix = path.suffix.lower()
+        try:
+            if suffix in self.RESUMABLE:
+                self._file = path.open("r", encoding="utf-8", errors="replace", newline=None)
+                self._reader: can.io.generic.MessageReader = (
+                    can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)
+                )
+            elif suffix == ".blf":
+                self._reader = _CheckedBlfReader(str(path))
+            else:
+                self._reader = can.LogReader(str(path))
+        except OSError as exc:
+            raise RecordingError(f"{path}: cannot read the CAN log: {exc.strerror or exc}") from None
+        except ValueError as exc:
+            if "unknown log format" in str(exc):  # python-can names no reader for the suffix
+                raise RecordingError(
+                    f"{path}: not a recording bogiemon replays: use a .csv recording or a CAN log "
+                    "(.log from candump -L, .asc, .blf)"
+                ) from None
+            raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad header
+            raise RecordingError(f"{path}: not a readable CAN log ({type(exc).__name__}: {exc})") from None
+
+    def __iter__(self) -> Iterator[can.Message]:
+        entries = 0
+        while True:
+            try:
+                for message in self._reader:
+                    entries += 1
+                    yield message
+                return
+            except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad line
+                detail = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                if self._file is None:
+                    self._on_unreadable(f"{self.path}: unreadable CAN log entry after {entries} frames, replay ends here: {detail}")
+                    return
+                self._on_unreadable(f"{self.path}: unreadable CAN log line after {entries} frames, skipped: {detail}")
+                failed = self._reader
+                self._reader = (
+                    _ResumedAscReader(self._file, failed)
+                    if isinstance(failed, can.ASCReader)
+                    else can.CanutilsLogReader(self._file)
+                )
+
+    def close(self) -> None:
+        try:
+            self._reader.stop()
+        except Exception:  # noqa: BLE001, S110 - closing a file that failed to parse: nothing left to release
+            pass
 
 
 def open_replay(

@@ -5,7 +5,9 @@ decides, frame by frame, whether a frame continues the current segment, repeats 
 one already taken (dropped), or follows a loss (a new segment starts). SampleQueue keeps the
 accepted samples by segment and cuts them into Blocks whose times come from the sample count
 within the segment, anchored to the receive time of the segment's first sample: uniform by
-construction, never bent by arrival jitter. A Block never spans two segments.
+construction, never bent by arrival jitter. A Block never spans two segments. TimestampGuard
+checks the receive times themselves before any of that: what a source cannot trust never
+anchors a segment.
 """
 
 from __future__ import annotations
@@ -16,11 +18,95 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.base import Block, SensorStatus
+from bogiemon.drivers.base import MAX_TIME_S, Block, HealthCounters, SensorStatus, plausible_time
 
 # A stream whose counter runs this many frames in a row behind the last accepted one has
 # restarted (a sensor reset or a power cycle): begin a new segment instead of dropping forever.
 RESTART_AFTER_BEHIND = 4
+# A time stamp may lag the latest accepted one by this much and still pass: frames of two
+# interfaces merged into one log, or stamped on different CPUs, arrive a few ms out of order.
+# Far below the 0.25 s of half a counter period at 500 Hz, where a counter jump turns ambiguous.
+TIME_STAMP_TOLERANCE_S = 0.1
+# This many consecutive stamps behind the latest accepted one, and in order among themselves, are
+# the clock having stepped back (NTP stepping a gateway's wall clock, which the kernel's receive
+# stamps follow), not a bad stamp: from then on the guard follows the new clock.
+CLOCK_STEP_AFTER = 8
+TIMESTAMP_COUNTERS = (
+    "bad_timestamps",  # frames whose time stamp is not finite, beyond MAX_TIME_S or behind (also bad_frames)
+    "clock_steps",  # times the receive clock stepped back and the guard followed it
+)
+
+
+class TimestampGuard:
+    """Receive time stamps checked at a source's boundary: finite, plausible, monotonic within a tolerance.
+
+    check(times_s) says which frames of a batch may pass. The others are counted in
+    counters.bad_frames and counters.extra["bad_timestamps"] and must be dropped by the caller: a
+    stamp that is not finite, lies beyond +/-MAX_TIME_S (drivers/base.py), or is more than
+    tolerance_s behind the latest accepted one. CLOCK_STEP_AFTER consecutive stamps behind, in
+    order among themselves, are a clock that stepped back: the last of them passes, the guard
+    follows the new clock and counts extra["clock_steps"]. A stamp ahead always passes (a pause on
+    the bus; the sequence check starts a new segment after a long one).
+    """
+
+    def __init__(
+        self,
+        counters: HealthCounters,
+        tolerance_s: float = TIME_STAMP_TOLERANCE_S,
+        clock_step_after: int = CLOCK_STEP_AFTER,
+    ) -> None:
+        if not tolerance_s >= 0 or clock_step_after < 1:
+            raise ValueError(f"tolerance_s must be >= 0 and clock_step_after >= 1, got {tolerance_s}, {clock_step_after}")
+        self.counters = counters
+        self.tolerance_s = tolerance_s
+        self.clock_step_after = clock_step_after
+        for name in TIMESTAMP_COUNTERS:
+            counters.extra.setdefault(name, 0)
+        self._latest_s = -np.inf  # the latest stamp accepted so far
+        self._behind_n = 0  # consecutive stamps behind it, in order among themselves
+        self._behind_latest_s = -np.inf
+
+    def check(self, times_s: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """(n,) True where the frame's receive time (n,) seconds may pass; counts the others."""
+        times_s = np.asarray(times_s, dtype=np.float64)
+        if times_s.size == 0:
+            return np.ones(0, dtype=bool)
+        if self._behind_n == 0:
+            # Fast path, the steady state: every stamp plausible and none behind the running latest.
+            with np.errstate(invalid="ignore"):
+                plausible = bool((np.abs(times_s) <= MAX_TIME_S).all())  # False for NaN
+            if plausible:
+                latest = np.maximum.accumulate(np.concatenate([[self._latest_s], times_s]))
+                if bool((times_s >= latest[:-1] - self.tolerance_s).all()):
+                    self._latest_s = float(latest[-1])
+                    return np.ones(times_s.size, dtype=bool)
+        return self._check_one_by_one(times_s)
+
+    def _check_one_by_one(self, times_s: NDArray[np.float64]) -> NDArray[np.bool_]:
+        accept = np.zeros(times_s.size, dtype=bool)
+        for i, time_s in enumerate(times_s.tolist()):
+            if not plausible_time(time_s):
+                continue
+            if time_s >= self._latest_s - self.tolerance_s:
+                accept[i] = True
+                self._latest_s = max(self._latest_s, time_s)
+                self._behind_n = 0
+                continue
+            if self._behind_n and time_s >= self._behind_latest_s - self.tolerance_s:
+                self._behind_n += 1
+                self._behind_latest_s = max(self._behind_latest_s, time_s)
+            else:
+                self._behind_n, self._behind_latest_s = 1, time_s
+            if self._behind_n >= self.clock_step_after:
+                accept[i] = True
+                self._latest_s = self._behind_latest_s
+                self._behind_n = 0
+                self.counters.add("clock_steps")
+        rejected = int(times_s.size - accept.sum())
+        if rejected:
+            self.counters.bad_frames += rejected
+            self.counters.add("bad_timestamps", rejected)
+        return accept
 
 
 @dataclass(frozen=True)

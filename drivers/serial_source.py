@@ -14,6 +14,7 @@ first packet is parsed, less the time the packets parsed with it took to arrive 
 
 from __future__ import annotations
 
+import math
 import termios
 import time
 from collections.abc import Callable
@@ -24,7 +25,7 @@ import serial
 
 from bogiemon.drivers.base import Block, HealthCounters, Source
 from bogiemon.drivers.reconnect import Backoff
-from bogiemon.drivers.segments import SampleQueue, SequenceTracker
+from bogiemon.drivers.segments import SampleQueue, SequenceTracker, TimestampGuard
 from bogiemon.drivers.serial_protocol import PACKET_SIZE, SEQUENCE_MODULUS, PacketParser
 
 SERIAL_COUNTERS = (
@@ -87,6 +88,9 @@ class SerialSource(Source):
         self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
         self._parser = PacketParser()
         self._tracker = SequenceTracker(SEQUENCE_MODULUS, MAX_SILENCE_S)
+        # Receive times come from the wall clock at each read, so a backlog read in two parts
+        # overlaps by design: only non-finite and implausible stamps are refused, not late ones.
+        self._guard = TimestampGuard(self.counters, tolerance_s=math.inf)
         self._queue = SampleQueue(fs_hz)
         self._serial: Any = None
         self._opened_before = False
@@ -134,11 +138,16 @@ class SerialSource(Source):
         k = packets.sequence.shape[0]
         if k == 0:
             return
-        self.counters.frames += k
         # Packet i was complete (k - 1 - i) sample periods before the last one, which was
         # complete at most one read ago: receive times spaced at fs_hz, ending now.
         times_s = received_s - (k - 1 - np.arange(k)) / self.fs_hz
-        verdict = self._tracker.check(packets.sequence, times_s)
+        passed = self._guard.check(times_s)
+        self.counters.frames += int(passed.sum())
+        if not passed.all():
+            sequence, accel_mps2, status, times_s = packets.sequence[passed], packets.accel_mps2[passed], packets.status[passed], times_s[passed]
+        else:
+            sequence, accel_mps2, status = packets.sequence, packets.accel_mps2, packets.status
+        verdict = self._tracker.check(sequence, times_s)
         if verdict.duplicates:
             self.counters.add("duplicates", verdict.duplicates)
         if verdict.out_of_order:
@@ -146,7 +155,7 @@ class SerialSource(Source):
         if verdict.lost:
             self.counters.add("lost_samples", verdict.lost)
         keep = verdict.accept
-        self._queue.append(packets.accel_mps2[keep], packets.status[keep], verdict.new_segment[keep], times_s[keep])
+        self._queue.append(accel_mps2[keep], status[keep], verdict.new_segment[keep], times_s[keep])
         if self.counters.frames > self._frames_at_open:
             self._backoff.reset()
 

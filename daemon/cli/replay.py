@@ -37,6 +37,10 @@ def run(args: argparse.Namespace) -> int:
         f"{c.sensor_fault_windows} with a sensor problem, {c.events} events; final mode {summary.final_mode}",
         file=sys.stderr,
     )
+    for report in summary.reports:  # what a source counted and skipped, one line per recording
+        line = report.skipped_text()
+        if line is not None:
+            print(line, file=sys.stderr)
     return 0
 
 

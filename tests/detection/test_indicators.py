@@ -2,6 +2,7 @@
 
 import dataclasses
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -181,3 +182,70 @@ def test_a_dead_sensor_leaves_normalised_indicators_undefined() -> None:
 def test_window_not_a_multiple_of_hop_is_rejected() -> None:
     with pytest.raises(ValueError, match="whole number of hops"):
         IndicatorStream(dataclasses.replace(FAST, hop_s=4.0), BogieGeometry())
+
+
+# --- ProcessingSettings: what the core cannot run is refused when the settings are built -------
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"fs_hz": 10.0}, r"lowpass_hz \(10 Hz\) must lie between 0 and Nyquist \(fs_hz / 2 = 5 Hz\)"),
+        ({"fs_hz": 333.33}, r"window 120 s must be a whole number of hops \(10 s\): at 333.33 Hz that is 40000 samples and hops of 3333"),
+        ({"fs_hz": 0.01}, r"fs_hz 0.01 Hz is outside the sample rates the core handles, 1 to 100000 Hz"),
+        ({"fs_hz": math.inf}, r"fs_hz must be a finite number, got inf"),
+        ({"fs_hz": 1 / 4.9e-324}, r"fs_hz must be a finite number, got inf"),
+        ({"window_s": math.inf}, r"window_s must be a finite number, got inf"),
+        ({"hop_s": math.nan}, r"hop_s must be a finite number, got nan"),
+        ({"fs_hz": "500"}, r"fs_hz must be a finite number, got '500'"),
+        ({"hop_s": 0.002}, r"hop_s \(0.002 s\) is 1 sample\(s\) at 500 Hz: a hop needs at least 2 samples"),
+        ({"hop_s": -10.0}, r"window_s and hop_s must be positive and max_lag_s not negative"),
+        ({"max_lag_s": 120.0}, r"max_lag_s \(120 s, 60000 samples at 500 Hz\) must be shorter than the window \(60000 samples\)"),
+        ({"highpass_hz": 0.0}, r"highpass_hz \(0 Hz\) must lie between 0 and Nyquist"),
+        ({"highpass_hz": 1e-4}, r"highpass_hz \(0.0001 Hz\) is below fs_hz x 1e-06 = 0.0005 Hz"),
+        ({"lowpass_order": 0}, r"lowpass_order must be a whole number from 1 to 32, got 0"),
+        ({"highpass_order": 2.5}, r"highpass_order must be a whole number from 1 to 32, got 2.5"),
+        ({"hop_s": 0.01, "max_lag_s": 100.0}, r"hold 600\d+ samples of cross-spectra, more than the 4194304 the core allows"),
+    ],
+    ids=[
+        "10hz-lowpass", "333.33hz-hops", "0.01hz", "inf-rate", "rate-of-4.9e-324-step", "inf-window", "nan-hop", "text",
+        "one-sample-hop", "negative-hop", "lag-of-a-window", "zero-cutoff", "cutoff-below-precision", "order-0",
+        "fractional-order", "memory",
+    ],
+)  # fmt: skip
+def test_settings_the_core_cannot_run_are_refused_with_a_message_naming_the_setting(changes: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        ProcessingSettings(**changes)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    fs_hz=st.one_of(st.floats(0.5, 2000.0), st.sampled_from([1.0, 20.0, 20.0001, 333.33, 500.0])),
+    window_s=st.floats(0.001, 20.0),
+    hops=st.integers(1, 12),
+    lag_fraction=st.floats(0.0, 1.2),
+    highpass_hz=st.floats(1e-7, 20.0),
+    lowpass_hz=st.floats(1e-3, 1000.0),
+    orders=st.tuples(st.integers(0, 33), st.integers(0, 33)),
+)
+def test_settings_that_build_always_run_the_core_to_finite_indicators(
+    fs_hz, window_s, hops, lag_fraction, highpass_hz, lowpass_hz, orders
+) -> None:
+    try:
+        s = ProcessingSettings(
+            fs_hz=fs_hz, window_s=window_s, hop_s=window_s / hops, max_lag_s=lag_fraction * window_s,
+            highpass_hz=highpass_hz, highpass_order=orders[0], lowpass_hz=lowpass_hz, lowpass_order=orders[1],
+        )  # fmt: skip
+    except ValueError:
+        return
+    assume(s.window_n <= 5000)
+    accel = np.random.default_rng(0).standard_normal((s.window_n + s.hop_n, 3)) + GRAVITY
+    out = IndicatorStream(s, BogieGeometry()).process(accel)
+    assert len(out) == 2
+    assert all(np.isfinite([*o.raw, o.rms_bounce_mps2, o.rms_pitch_radps2, o.rms_roll_radps2]).all() for o in out)
+
+
+@pytest.mark.parametrize("name", ["window_s", "hop_s", "max_lag_s"])
+def test_a_duration_of_more_samples_than_a_float_holds_is_a_value_error_not_an_overflow(name: str) -> None:
+    with pytest.raises(ValueError, match=rf"{name} \(3.6e\+305 s\) is inf samples at 500 Hz, more than the"):
+        ProcessingSettings(**{name: 3.6e305})

@@ -98,3 +98,34 @@ def test_a_binary_file_is_not_a_recording(tmp_path: Path) -> None:
     path.write_bytes(b"\xff\xfe\x00\x81garbage")
     with pytest.raises(RecordingError, match="not a text file"):
         read_csv_recording(path)
+
+
+def test_a_file_cut_inside_a_utf8_character_is_an_error_naming_the_last_line(tmp_path: Path) -> None:
+    path = tmp_path / "cut.csv"
+    path.write_bytes(b"time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.004,1,2,\xc3")  # a logger killed mid-write
+    with pytest.raises(RecordingError) as info:
+        read_csv_recording(path)
+    assert str(info.value) == (
+        f"{path}: line 4: not UTF-8 text, byte 0xc3 at column 11 (cut in the middle of a character: "
+        "the file is truncated); remove or repair the line"
+    )
+
+
+def test_a_byte_that_is_not_utf8_in_a_data_line_is_an_error_naming_its_line(tmp_path: Path) -> None:
+    path = tmp_path / "bad.csv"
+    path.write_bytes(b"time_s,a1,a2,a3\n0,1,2,3\n0.002,1,\xff,3\n0.004,1,2,3\n")
+    with pytest.raises(RecordingError, match=r"bad.csv: line 3: not UTF-8 text, byte 0xff at column 9; remove or repair"):
+        read_csv_recording(path)
+
+
+def test_a_time_step_of_the_smallest_double_is_no_sample_rate(tmp_path: Path) -> None:
+    rows = "".join(f"{i * 4.9e-324!r},1,2,3\n" for i in range(10))  # 1 / 4.9e-324 overflows to inf
+    path = write(tmp_path, "time_s,a1,a2,a3\n" + rows)
+    with pytest.raises(RecordingError, match=r"time steps of 4.94066e-324 s give no finite sample rate: time_s must be in seconds"):
+        read_csv_recording(path)
+
+
+def test_a_time_beyond_the_year_2100_is_an_error_naming_its_line(tmp_path: Path) -> None:
+    path = write(tmp_path, "time_s,a1,a2,a3\n0,1,2,3\n1e300,1,2,3\n")
+    with pytest.raises(RecordingError, match=r"line 3: time_s 1e\+300 is no plausible time \(beyond \+/-4102444800 s"):
+        read_csv_recording(path)

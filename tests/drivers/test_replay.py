@@ -1,7 +1,9 @@
-"""Replay: CSV recordings and CAN logs (.log, .asc, .blf) as sources, paced or not, ending with EndOfStream."""
+"""Replay: CSV recordings and CAN logs (.log, .asc, .blf) as sources, paced or not, ending with EndOfStream;
+bad lines, identifiers and time stamps in a log counted and skipped."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import can
@@ -11,8 +13,8 @@ import pytest
 from bogiemon.drivers.base import EndOfStream, Source
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import RecordingError
-from bogiemon.drivers.replay import CanLogReplaySource, CsvReplaySource, open_replay
-from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, check_blocks, layout_frames, write_recording
+from bogiemon.drivers.replay import MAX_PACED_PAUSE_S, CanLogReplaySource, CsvReplaySource, open_replay
+from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, check_blocks, coded_accel, layout_frames, write_recording
 
 
 def drain(source: Source) -> list:
@@ -128,3 +130,147 @@ def test_an_unusable_replay_file_is_named_in_one_line(tmp_path: Path, name: str,
         (tmp_path / name).write_bytes(b"ID3")
     with pytest.raises(RecordingError, match=message):
         open_replay(tmp_path / name, rate=0, layout=HUB, fs_hz=FS_HZ)
+
+
+def log_lines(path: Path, layout, n: int, start_s: float = 1000.0) -> list[str]:
+    """The lines of a candump -L log of n coded instants (tests/drivers/frames.py)."""
+    write_can_log(path, layout, coded_accel(np.arange(n)), FS_HZ, start_s=start_s)
+    return path.read_text().splitlines()
+
+
+def with_stamp(line: str, stamp: str) -> str:
+    """A candump -L line, "(time) interface id#data", with another time field."""
+    return f"({stamp})" + line[line.index(")") + 1 :]
+
+
+def test_an_asc_frame_id_too_large_for_a_c_long_is_counted_as_unknown_and_skipped(tmp_path: Path) -> None:
+    path = tmp_path / "run.asc"
+    write_can_log(path, HUB, coded_accel(np.arange(200)), FS_HZ, start_s=0.0)
+    lines = path.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if " Tx " in line)
+    lines[first + 50] = lines[first + 50].replace(" 100 ", " FFFFFFFFFFFFFFFFFFFF ", 1)
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    segments = check_blocks(drain(source))
+    assert [(s[0], s[-1]) for s in segments] == [(0, 49), (51, 199)]
+    assert source.counters.extra["unknown_ids"] == source.counters.bad_frames == 1
+
+
+@pytest.mark.parametrize("stamp", ["nan", "inf", "-inf", "1e300"])
+@pytest.mark.parametrize("where", [0, 120], ids=["first", "middle"])
+def test_a_log_frame_with_an_unusable_time_stamp_is_counted_and_skipped(tmp_path: Path, stamp: str, where: int) -> None:
+    path = tmp_path / "run.log"
+    lines = log_lines(path, HUB, 300)
+    lines[where] = with_stamp(lines[where], stamp)
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    blocks = drain(source)
+    assert source.counters.extra["bad_timestamps"] == source.counters.bad_frames == 1
+    assert all(1000.0 <= b.start_s < 1001.0 for b in blocks)
+    kept = np.concatenate(check_blocks(blocks))
+    np.testing.assert_array_equal(kept, np.delete(np.arange(300), where))
+
+
+def test_an_unparseable_line_in_the_middle_of_a_log_is_counted_and_the_rest_replayed(tmp_path: Path) -> None:
+    path = tmp_path / "run.log"
+    lines = log_lines(path, HUB, 300)
+    lines[150] = "(1000.300000) can0 this is no frame"
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    segments = check_blocks(drain(source))
+    assert [(s[0], s[-1]) for s in segments] == [(0, 149), (151, 299)]
+    assert source.counters.extra["unreadable_entries"] == source.counters.bad_frames == 1
+    assert source.last_error.startswith(f"{path}: unreadable CAN log line after 150 frames, skipped: ValueError")
+
+
+def test_unparseable_lines_in_an_asc_log_are_counted_and_the_rest_replayed_with_its_header(tmp_path: Path) -> None:
+    path = tmp_path / "run.asc"
+    write_can_log(path, HUB, coded_accel(np.arange(300)), FS_HZ, start_s=0.0)
+    lines = path.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if " Tx " in line)
+    for k in (100, 200):
+        lines[first + k] = lines[first + k][:-2] + "ZZ"  # a data byte that is no hex number
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    blocks = drain(source)
+    assert [(s[0], s[-1]) for s in check_blocks(blocks)] == [(0, 99), (101, 199), (201, 299)]
+    assert source.counters.extra["unreadable_entries"] == 2
+    assert blocks[-1].start_s == pytest.approx(201 / FS_HZ)  # times still relative to the header's start
+
+
+def test_an_asc_log_with_a_damaged_base_header_counts_it_and_replays_past_a_bad_line(tmp_path: Path) -> None:
+    # Found by make fuzz (canlog-asc): python-can reads "base heX" from the header, then refuses
+    # it; the header counts as an unreadable entry and the frames are read as hex, the default.
+    path = tmp_path / "run.asc"
+    write_can_log(path, HUB, coded_accel(np.arange(300)), FS_HZ, start_s=0.0)
+    lines = path.read_text().splitlines()
+    base = next(i for i, line in enumerate(lines) if line.startswith("base "))
+    lines[base] = lines[base].replace("base hex", "base heX")
+    first = next(i for i, line in enumerate(lines) if " Tx " in line)
+    lines[first + 100] = lines[first + 100][:-2] + "ZZ"
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    assert [(s[0], s[-1]) for s in check_blocks(drain(source))] == [(0, 99), (101, 299)]
+    assert source.counters.extra["unreadable_entries"] == 2  # the header's base line and the bad frame
+
+
+def test_a_paced_replay_of_a_log_whose_first_time_stamp_is_nan_does_not_stall(tmp_path: Path) -> None:
+    path = tmp_path / "run.log"
+    lines = log_lines(path, HUB, 500, start_s=5000.0)
+    lines[0] = with_stamp(lines[0], "nan")
+    path.write_text("\n".join(lines) + "\n")
+    clock = FakeClock()
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=1.0, max_block_s=0.5, clock=clock, sleep=clock.sleep)
+    assert sum(b.n_samples for b in drain(source)) == 499
+    assert clock.now_s == pytest.approx(498 / FS_HZ)
+
+
+def test_a_paced_replay_waits_out_a_long_silence_for_max_paced_pause_s_only(tmp_path: Path) -> None:
+    path = tmp_path / "run.log"
+    lines = log_lines(path, HUB, 200, start_s=5000.0)
+    lines[100] = with_stamp(lines[100], "4000000000.0")  # a stamp from 2096
+    path.write_text("\n".join(lines) + "\n")
+    clock = FakeClock()
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=1.0, clock=clock, sleep=clock.sleep)
+    drain(source)
+    assert clock.now_s < MAX_PACED_PAUSE_S + 1.0
+
+
+def test_a_blf_with_a_corrupt_header_is_one_recording_error(tmp_path: Path) -> None:
+    path = tmp_path / "run.blf"
+    path.write_bytes(b"LOGG" + bytes(20))
+    with pytest.raises(RecordingError, match=r"run.blf: not a readable CAN log"):
+        open_replay(path, rate=0, layout=HUB, fs_hz=FS_HZ)
+
+
+def test_a_blf_with_a_corrupt_object_ends_the_replay_there_counted(tmp_path: Path) -> None:
+    path = tmp_path / "run.blf"
+    write_can_log(path, HUB, coded_accel(np.arange(300)), FS_HZ, start_s=1.7e9)
+    data = bytearray(path.read_bytes())
+    data[-40:] = b"\x00" * 40  # the last container's tail: zlib cannot decompress it
+    path.write_bytes(bytes(data))
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    drain(source)
+    assert source.counters.extra["unreadable_entries"] == 1
+    assert "replay ends here" in source.last_error
+
+
+def test_a_blf_object_declaring_zero_bytes_ends_the_replay_instead_of_spinning(tmp_path: Path) -> None:
+    path = tmp_path / "run.blf"
+    with can.BLFWriter(str(path), compression_level=0) as writer:  # containers stored, not deflated
+        for message in layout_frames(HUB, np.arange(300)):
+            writer.on_message_received(message)
+    data = bytearray(path.read_bytes())
+    objects = [i for i in range(len(data)) if data[i : i + 4] == b"LOBJ"]
+    # objects[0] is the container; [1] the first frame. Python-can's parser advanced by this size
+    # and stayed on the object for ever.
+    data[objects[150] + 8 : objects[150] + 12] = bytes(4)
+    path.write_bytes(bytes(data))
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    finished = threading.Event()
+    thread = threading.Thread(target=lambda: (drain(source), finished.set()), daemon=True)
+    thread.start()
+    assert finished.wait(60), "the replay spun on a zero-length object"
+    assert source.counters.extra["unreadable_entries"] == 1
+    assert "BLFParseError: an object of a container declares 0 bytes" in source.last_error
+    assert source.counters.frames == 149  # the frames before it

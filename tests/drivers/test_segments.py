@@ -1,12 +1,21 @@
-"""Sequence counters and segments: every counter anomaly classified, fast path equal to the frame-by-frame one."""
+"""Sequence counters, segments and time stamps: every anomaly classified, fast paths equal to the plain references."""
+
+import math
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bogiemon.drivers.base import SensorStatus
-from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker
+from bogiemon.drivers.base import MAX_TIME_S, Block, HealthCounters, SensorStatus
+from bogiemon.drivers.segments import (
+    CLOCK_STEP_AFTER,
+    RESTART_AFTER_BEHIND,
+    TIME_STAMP_TOLERANCE_S,
+    SampleQueue,
+    SequenceTracker,
+    TimestampGuard,
+)
 
 FS_HZ = 500.0
 SILENCE_S = 127 / FS_HZ
@@ -135,3 +144,110 @@ def test_queue_continues_the_open_segment_across_appends() -> None:
     queue.close_segment()
     queue.append(np.ones((1, 3)), np.zeros((1, 3), np.uint8), np.zeros(1, bool), np.array([9.0]))
     assert queue.take(100).gap_before and queue.gaps == 1
+
+
+# --- TimestampGuard: receive times checked at the source boundary --------------------------------
+
+
+def guard_reference(times_s: list[float], tolerance_s: float = TIME_STAMP_TOLERANCE_S, step_after: int = CLOCK_STEP_AFTER) -> tuple[list[bool], int]:
+    """The guard's rule written out plainly, one stamp at a time: (passed, clock steps)."""
+    latest, run, run_latest, steps, passed = -math.inf, 0, -math.inf, 0, []
+    for t in times_s:
+        if not (math.isfinite(t) and abs(t) <= MAX_TIME_S):
+            passed.append(False)
+        elif t >= latest - tolerance_s:
+            passed.append(True)
+            latest, run = max(latest, t), 0
+        else:
+            run, run_latest = (run + 1, max(run_latest, t)) if run and t >= run_latest - tolerance_s else (1, t)
+            if run >= step_after:
+                passed.append(True)
+                latest, run, steps = run_latest, 0, steps + 1
+            else:
+                passed.append(False)
+    return passed, steps
+
+
+def guard_check(times_s: list[float]) -> tuple[list[bool], HealthCounters]:
+    counters = HealthCounters()
+    return TimestampGuard(counters).check(np.array(times_s)).tolist(), counters
+
+
+def test_a_monotonic_stream_of_time_stamps_passes_whole_and_counts_nothing() -> None:
+    passed, counters = guard_check((1.7e9 + np.arange(50) / FS_HZ).tolist())
+    assert passed == [True] * 50
+    assert counters.bad_frames == counters.extra["bad_timestamps"] == counters.extra["clock_steps"] == 0
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 1e300, -1e300, MAX_TIME_S * 1.0001])
+def test_a_non_finite_or_implausible_time_stamp_is_dropped_and_counted(bad: float) -> None:
+    passed, counters = guard_check([10.0, 10.002, bad, 10.006])
+    assert passed == [True, True, False, True]
+    assert counters.bad_frames == counters.extra["bad_timestamps"] == 1
+
+
+def test_a_nan_first_time_stamp_is_dropped_and_the_next_one_anchors_the_stream() -> None:
+    passed, counters = guard_check([math.nan, 1.7e9, 1.7e9 + 0.002])
+    assert passed == [False, True, True] and counters.extra["bad_timestamps"] == 1
+
+
+def test_a_stamp_behind_beyond_the_tolerance_is_dropped_one_within_passes() -> None:
+    t = 100.0
+    passed, counters = guard_check([t, t + 0.2, t + 0.2 - TIME_STAMP_TOLERANCE_S / 2, t + 0.2 - 2 * TIME_STAMP_TOLERANCE_S, t + 0.21])
+    assert passed == [True, True, True, False, True]
+    assert counters.extra["bad_timestamps"] == 1 and counters.extra["clock_steps"] == 0
+
+
+def test_a_clock_stepped_back_is_followed_after_clock_step_after_stamps() -> None:
+    before = [500.0 + i / FS_HZ for i in range(5)]
+    after = [100.0 + i / FS_HZ for i in range(CLOCK_STEP_AFTER + 3)]
+    passed, counters = guard_check(before + after)
+    assert passed == [True] * 5 + [False] * (CLOCK_STEP_AFTER - 1) + [True] * 4
+    assert counters.extra["bad_timestamps"] == CLOCK_STEP_AFTER - 1 and counters.extra["clock_steps"] == 1
+
+
+@st.composite
+def stamp_streams(draw: st.DrawFn) -> tuple[list[float], list[int]]:
+    """Mostly increasing stamps with bad values, stamps behind, clock steps both ways; and batch sizes."""
+    t, out = draw(st.sampled_from([0.0, 1.7e9])), []
+    for _ in range(draw(st.integers(1, 150))):
+        event = draw(st.sampled_from(["next"] * 8 + ["bad", "behind", "step_back", "jitter", "pause"]))
+        if event == "bad":
+            out.append(draw(st.sampled_from([math.nan, math.inf, -math.inf, 1e300])))
+            continue
+        if event == "behind":
+            out.append(t - draw(st.floats(0.0, 5.0)))
+            continue
+        if event == "step_back":
+            t -= draw(st.floats(0.2, 100.0))
+        elif event == "jitter":
+            t -= draw(st.floats(0.0, 0.15))
+        elif event == "pause":
+            t += draw(st.floats(0.2, 1000.0))
+        t += 1 / FS_HZ
+        out.append(t)
+    return out, draw(st.lists(st.integers(1, 40), min_size=1, max_size=10))
+
+
+@settings(max_examples=200, deadline=None)
+@given(stream=stamp_streams())
+def test_the_batched_guard_equals_the_plain_reference(stream: tuple[list[float], list[int]]) -> None:
+    times, splits = stream
+    counters = HealthCounters()
+    guard = TimestampGuard(counters)
+    passed: list[bool] = []
+    i = s = 0
+    while i < len(times):
+        j = min(len(times), i + splits[s % len(splits)])
+        passed += guard.check(np.array(times[i:j])).tolist()
+        i, s = j, s + 1
+    want, steps = guard_reference(times)
+    assert passed == want
+    assert counters.extra["bad_timestamps"] == counters.bad_frames == want.count(False)
+    assert counters.extra["clock_steps"] == steps
+
+
+@pytest.mark.parametrize(("start_s", "fs_hz"), [(math.nan, FS_HZ), (math.inf, FS_HZ), (0.0, math.inf), (0.0, 0.0)])
+def test_a_block_with_a_time_or_rate_that_is_not_finite_is_refused_as_a_driver_bug(start_s: float, fs_hz: float) -> None:
+    with pytest.raises(ValueError, match="must be finite"):
+        Block(start_s=start_s, fs_hz=fs_hz, accel_mps2=np.zeros((4, 3)))

@@ -185,6 +185,14 @@ def test_sequence_anomalies_are_counted() -> None:
     assert source.counters.gaps == 1
 
 
+def test_packets_read_at_a_clock_that_gives_no_finite_time_are_counted_and_never_passed_on() -> None:
+    data = b"".join(encode_packets(coded_accel(np.array([k])), first_sequence=k) for k in range(5))
+    source = SerialSource("scripted", 115200, FS_HZ, opener=lambda port, baud: ScriptedPort([data]), wall_clock=lambda: float("nan"))
+    assert source.read(0.01) is None
+    assert source.counters.frames == 0
+    assert source.counters.bad_frames == 5 and source.counters.extra["bad_timestamps"] == 5
+
+
 # ---- a real pseudo-terminal, unplugged and back ------------------------------------------------
 
 

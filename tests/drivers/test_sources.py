@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pydantic import BaseModel
 
@@ -13,6 +14,7 @@ from bogiemon.daemon.config import ConfigError, parse_config
 from bogiemon.daemon.sources import OPENERS, open_source
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import DbcError
+from bogiemon.drivers.recording import RecordingError, write_csv_recording
 from bogiemon.drivers.replay import CanLogReplaySource, CsvReplaySource
 from bogiemon.drivers.serial_source import SerialSource
 from tests.drivers.frames import write_recording
@@ -106,3 +108,10 @@ def test_a_bad_source_field_is_named_with_its_path(text: str, expected: str) -> 
     with pytest.raises(ConfigError) as info:
         parse_config(text, "site.toml")
     assert expected in str(info.value)
+
+
+def test_a_csv_replay_at_a_rate_the_config_cannot_run_is_refused_at_start_in_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "slow.csv"
+    write_csv_recording(path, 1.7e9 + np.arange(400) / 10.0, np.full((400, 3), 9.81))  # 10 Hz: the 10 Hz low-pass cannot run
+    with pytest.raises(RecordingError, match=r"slow\.csv: recorded at 10 Hz, a rate the config's \[processing\] cannot run at"):
+        open_source(parse_config(f'[source]\nkind = "replay"\npath = "{path}"\n', "t"))
