@@ -9,7 +9,10 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import os
+import stat
 import tomllib
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
@@ -18,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, Validatio
 
 from bogiemon.daemon.decision import INDICATOR_FIELDS, DecisionSettings, FusedSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
+from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import Baseline, Levels, LoadModel, shipped_models
 from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
 from bogiemon.detection.features import COUPLING_NAMES
@@ -26,6 +30,10 @@ if TYPE_CHECKING:
     from bogiemon.daemon.monitor import MonitorSettings
 
 DEFAULT_CONFIG_NAME = "bogiemon.toml"
+# A config is a page of hand-written TOML (the shipped one is 15 KiB): a file larger than this is
+# not one, and reading it whole (a log named by mistake, /dev/zero) must not exhaust memory.
+MAX_CONFIG_BYTES = 1 << 20
+MAX_FS_HZ = 10_000.0  # no accelerometer feed of a bogie runs faster
 
 
 class ConfigError(ValueError):
@@ -33,7 +41,9 @@ class ConfigError(ValueError):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # No field takes inf or nan: every number of the config is a duration, a rate, a level or a
+    # count, and a non-finite one ends in OverflowError or NaN far from the file that caused it.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class GeometryConfig(_Section):
@@ -55,8 +65,8 @@ class SensorsConfig(_Section):
 
 
 class ProcessingConfig(_Section):
-    fs_hz: float = Field(500.0, gt=0)
-    window_s: float = Field(120.0, gt=0)
+    fs_hz: float = Field(500.0, gt=0, le=MAX_FS_HZ)
+    window_s: float = Field(120.0, gt=0, le=3600)
     hop_s: float = Field(10.0, gt=0)
     max_lag_s: float = Field(10.0, ge=0)
     highpass_hz: float = Field(0.5, gt=0)
@@ -66,18 +76,27 @@ class ProcessingConfig(_Section):
 
     @model_validator(mode="after")
     def _consistent(self) -> ProcessingConfig:
-        ratio = self.window_s / self.hop_s
-        if abs(ratio - round(ratio)) > 1e-9:
-            raise ValueError(f"window_s ({self.window_s}) must be a whole multiple of hop_s ({self.hop_s})")
-        if self.max_lag_s >= self.window_s:
-            raise ValueError(f"max_lag_s ({self.max_lag_s}) must be shorter than window_s ({self.window_s})")
-        nyquist_hz = self.fs_hz / 2
-        for name in ("highpass_hz", "lowpass_hz"):
-            if getattr(self, name) >= nyquist_hz:
-                raise ValueError(f"{name} ({getattr(self, name)}) must be below Nyquist, fs_hz / 2 = {nyquist_hz}")
-        if self.highpass_hz >= self.lowpass_hz:
-            raise ValueError(f"highpass_hz ({self.highpass_hz}) must be below lowpass_hz ({self.lowpass_hz})")
+        core_settings(self, self.fs_hz)  # ValueError: pydantic names the section
         return self
+
+
+def core_settings(p: ProcessingConfig, fs_hz: float) -> ProcessingSettings:
+    """The detection core's settings for [processing] at fs_hz (the configured rate, or a
+    recording's). ValueError where the core cannot run them: its own check (detection's
+    ProcessingSettings, whose messages name these keys), the one rule of what it can run; and the
+    config's own, the high-pass below the low-pass."""
+    if p.highpass_hz >= p.lowpass_hz:
+        raise ValueError(f"highpass_hz ({p.highpass_hz}) must be below lowpass_hz ({p.lowpass_hz})")
+    return ProcessingSettings(
+        fs_hz=fs_hz,
+        window_s=p.window_s,
+        hop_s=p.hop_s,
+        max_lag_s=p.max_lag_s,
+        highpass_hz=p.highpass_hz,
+        highpass_order=p.highpass_order,
+        lowpass_hz=p.lowpass_hz,
+        lowpass_order=p.lowpass_order,
+    )
 
 
 LoadState = Literal["full", "tare"]
@@ -118,7 +137,7 @@ class FusedBaselineConfig(_Section):
     alarm: float = Field(gt=0)
     trend_warning: float = Field(gt=0)
     trend_alarm: float = Field(gt=0)
-    windows: int = Field(0, ge=0)  # the calibration windows it was learned from (for people)
+    windows: int = Field(0, ge=0, le=2**31)  # the calibration windows it was learned from (for people)
 
     @model_validator(mode="after")
     def _consistent(self) -> FusedBaselineConfig:
@@ -138,7 +157,7 @@ class DecisionConfig(_Section):
     load: Literal["auto", "full", "tare"] = "auto"
     confirm_k: int = Field(3, ge=1)
     confirm_n: int = Field(5, ge=1, le=100)
-    clear_after_windows: int = Field(6, ge=1)
+    clear_after_windows: int = Field(6, ge=1, le=100_000)
     thresholds: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = Field(default_factory=lambda: DEFAULT_THRESHOLDS)
     # The wagon's calibrated baselines (none shipped: without one a load is judged against the
     # fleet's population baseline, config/fused_model.toml).
@@ -175,12 +194,12 @@ class HealthConfig(_Section):
     noise_ratio: float = Field(2.0, gt=1)
     noise_low_band_ratio: float = Field(3.2, gt=1)
     max_rms_mps2: float = Field(50.0, gt=0)
-    max_gaps_per_hour: int = Field(6, ge=0)
+    max_gaps_per_hour: int = Field(6, ge=0, le=1_000_000)
     gravity_mps2: float = Field(9.81, gt=0)
     structure_checks: bool = True
     layout_low_coherence: float = Field(-0.2, ge=-1, le=0)
     layout_diagonal_coherence: float = Field(-0.3, ge=-1, le=0)
-    clear_after_windows: int = Field(3, ge=1)
+    clear_after_windows: int = Field(3, ge=1, le=100_000)
 
 
 class StateConfig(_Section):
@@ -188,7 +207,8 @@ class StateConfig(_Section):
 
 
 class PipelineConfig(_Section):
-    ring_capacity_s: float = Field(60.0, gt=0)
+    # The ring is allocated whole at start: 600 s at the highest rate is 140 MiB.
+    ring_capacity_s: float = Field(60.0, gt=0, le=600)
 
 
 class _SourceSection(_Section):
@@ -198,8 +218,10 @@ class _SourceSection(_Section):
 
 
 class _LiveSourceSection(_SourceSection):
-    reconnect_backoff_min_s: float = Field(0.5, gt=0)
-    reconnect_backoff_max_s: float = Field(30.0, gt=0)
+    # Waits are bounded: a thread's wait() takes at most about 49 days, and a retry storm of
+    # microsecond backoffs helps no one.
+    reconnect_backoff_min_s: float = Field(0.5, ge=0.01, le=3600)
+    reconnect_backoff_max_s: float = Field(30.0, ge=0.01, le=3600)
 
     @model_validator(mode="after")
     def _backoff_order(self) -> _LiveSourceSection:
@@ -217,13 +239,13 @@ class CanSourceConfig(_LiveSourceSection):
     channel: str = Field("can0", min_length=1)
     layout: Literal["hub", "per-node"] = "hub"
     dbc_path: str = ""  # empty: the shipped config/bogiemon.dbc
-    receive_buffer_bytes: int = Field(1_048_576, ge=4096)
+    receive_buffer_bytes: int = Field(1_048_576, ge=4096, le=2**31 - 1)  # SO_RCVBUF is a C int
 
 
 class SerialSourceConfig(_LiveSourceSection):
     kind: Literal["serial"]
     port: str = Field("/dev/ttyUSB0", min_length=1)
-    baudrate: int = Field(115200, gt=0)
+    baudrate: int = Field(115200, gt=0, le=12_000_000)
 
 
 class ReplaySourceConfig(_SourceSection):
@@ -241,14 +263,36 @@ class SimulatedSourceConfig(_SourceSection):
     load: Literal["full", "tare"] = "full"
     speed_kmh: float = Field(80.0, gt=0, le=200)
     track: str = "erri-low"
-    duration_s: float = Field(300.0, gt=0)
-    seed: int = Field(0, ge=0)
+    # The whole run is simulated at open and held in memory (an hour at 500 Hz: 40 MiB).
+    duration_s: float = Field(300.0, gt=0, le=3600)
+    seed: int = Field(0, ge=0, le=2**63 - 1)
     faults: list[str] = Field(default_factory=list)
     fault_at_s: float = Field(0.0, ge=0)
-    rate: float = Field(8.0, gt=0)
+    rate: float = Field(8.0, ge=0.01, le=10_000)
     channel: str = Field("bogiemon-sim", min_length=1)
     layout: Literal["hub", "per-node"] = "hub"
     dbc_path: str = ""
+
+    @model_validator(mode="after")
+    def _a_scenario(self) -> SimulatedSourceConfig:
+        # The simulator's own names and fault syntax (its two small modules, not the simulator).
+        from bogiemon.simulator.errors import SimulationError
+        from bogiemon.simulator.suspension import parse_fault
+        from bogiemon.simulator.track import TRACKS
+
+        if self.track not in TRACKS:
+            raise ValueError(f"unknown track {self.track!r}: use one of {', '.join(TRACKS)}")
+        for spec in self.faults:
+            try:
+                parse_fault(spec)
+            except SimulationError as exc:
+                raise ValueError(str(exc)) from None
+        # As the simulator's Scenario checks them at open.
+        if self.fault_at_s >= self.duration_s:
+            raise ValueError(f"fault_at_s ({self.fault_at_s:g}) must lie before the end of the run, duration_s = {self.duration_s:g}")
+        if self.fault_at_s > 0 and not self.faults:
+            raise ValueError("fault_at_s needs a fault in faults")
+        return self
 
 
 def _source_kind(value: Any) -> str | None:
@@ -297,14 +341,17 @@ class MqttConfig(_Section):
     tls_key_file: str = ""
     username_file: str = ""
     password_file: str = ""
+    # A password over plain MQTT crosses the network readable by anyone on the path: only when
+    # the config says so (a bench).
+    allow_plaintext: bool = False
     keepalive_s: int = Field(30, ge=5, le=3600)
     connect_timeout_s: float = Field(10.0, gt=0, le=120)
-    status_period_s: float = Field(60.0, ge=0)
-    max_rate_msgs_per_s: float = Field(10.0, gt=0)
+    status_period_s: float = Field(60.0, ge=0, le=86400)
+    max_rate_msgs_per_s: float = Field(10.0, ge=0.01, le=10_000)
     max_inflight: int = Field(10, ge=1, le=1000)
-    outbox_max_messages: int = Field(10000, ge=10)
-    reconnect_backoff_min_s: float = Field(1.0, gt=0)
-    reconnect_backoff_max_s: float = Field(60.0, gt=0)
+    outbox_max_messages: int = Field(10000, ge=10, le=10_000_000)
+    reconnect_backoff_min_s: float = Field(1.0, ge=0.01, le=3600)
+    reconnect_backoff_max_s: float = Field(60.0, ge=0.01, le=3600)
 
     @model_validator(mode="after")
     def _consistent(self) -> MqttConfig:
@@ -314,6 +361,11 @@ class MqttConfig(_Section):
             raise ValueError("a client certificate (tls_cert_file) needs tls = true")
         if self.password_file and not self.username_file:
             raise ValueError("password_file needs username_file")
+        if self.password_file and not self.tls and not self.allow_plaintext:
+            raise ValueError(
+                "password_file with tls = false would send the password in clear: set tls = true "
+                "(and the broker's TLS port), or allow_plaintext = true on a bench"
+            )
         if self.reconnect_backoff_min_s > self.reconnect_backoff_max_s:
             raise ValueError(
                 f"reconnect_backoff_min_s ({self.reconnect_backoff_min_s}) must not exceed "
@@ -329,13 +381,15 @@ class CanAlarmsConfig(_Section):
     interface: Literal["socketcan", "virtual"] = "socketcan"
     channel: str = Field("can0", min_length=1)
     dbc_path: str = ""
-    heartbeat_period_s: float = Field(1.0, ge=0)
+    heartbeat_period_s: float = Field(1.0, ge=0, le=3600)
 
 
 class BogiemonConfig(_Section):
     """The whole configuration."""
 
     include: list[str] = Field(default_factory=list)
+    # Includes resolve inside the including file's folder unless this says otherwise (load_config).
+    allow_absolute_includes: bool = False
     geometry: GeometryConfig = GeometryConfig()
     sensors: SensorsConfig = SensorsConfig()
     processing: ProcessingConfig = ProcessingConfig()
@@ -353,6 +407,56 @@ class BogiemonConfig(_Section):
         if self.mqtt.enabled and not self.wagon.id:
             raise ValueError("mqtt.enabled needs the wagon's id in its topics: set [wagon] id")
         return self
+
+    @model_validator(mode="after")
+    def _ring_holds_a_block(self) -> BogiemonConfig:
+        # The ring refuses a block larger than itself (a ValueError in the source thread).
+        if self.pipeline.ring_capacity_s < self.source.max_block_s:
+            raise ValueError(
+                f"pipeline.ring_capacity_s ({self.pipeline.ring_capacity_s:g}) must hold one block of "
+                f"source.max_block_s ({self.source.max_block_s:g})"
+            )
+        return self
+
+    def build_problems(self) -> list[str]:
+        """Whatever `run` builds from the config, built once: each failure as one line (empty: it starts).
+
+        validate_config calls it, so that what check-config accepts the service starts, and a
+        reload applies, with the same settings objects (the sources' files aside: a DBC or a
+        recording is opened at start and named then).
+        """
+        problems = []
+        builders: list[tuple[str, Callable[[], object]]] = [
+            ("processing", self.processing_settings),
+            ("geometry and sensors", self.bogie_geometry),
+            ("health", self.health_settings),
+            ("decision", self.decision_settings),
+            ("decision", self.check_models),
+            ("decision.load", self.load_model),
+        ]
+        for section, build in builders:
+            try:
+                build()
+            except ConfigError as exc:
+                problems.append(str(exc))
+            except ValueError as exc:  # a settings class's own check that the model above lacks
+                problems.append(f"{section}: {exc}")
+        return problems
+
+    def credential_warnings(self) -> list[str]:
+        """One line per [mqtt] credential or key file that others can read, and for a password in clear."""
+        from bogiemon.daemon.delivery.connection import readable_by_others  # only with [mqtt] files
+
+        m = self.mqtt
+        warnings = []
+        for field in ("tls_key_file", "username_file", "password_file"):
+            path = getattr(m, field)
+            problem = readable_by_others(path) if path else None
+            if problem is not None:
+                warnings.append(f"mqtt.{field}: {problem}")
+        if m.password_file and not m.tls:
+            warnings.append("mqtt: allow_plaintext = true: the password crosses the network in clear (tls = false)")
+        return warnings
 
     def health_settings(self) -> HealthSettings:
         h = self.health
@@ -401,18 +505,17 @@ class BogiemonConfig(_Section):
         )
 
     def processing_settings(self, fs_hz: float | None = None) -> ProcessingSettings:
-        """The detection core's settings; fs_hz overrides the configured rate (e.g. a recording's)."""
+        """The detection core's settings; fs_hz overrides the configured rate (e.g. a recording's).
+
+        ConfigError, naming the [processing] keys, when the core cannot run them at that rate.
+        """
         p = self.processing
-        return ProcessingSettings(
-            fs_hz=p.fs_hz if fs_hz is None else fs_hz,
-            window_s=p.window_s,
-            hop_s=p.hop_s,
-            max_lag_s=p.max_lag_s,
-            highpass_hz=p.highpass_hz,
-            highpass_order=p.highpass_order,
-            lowpass_hz=p.lowpass_hz,
-            lowpass_order=p.lowpass_order,
-        )
+        rate_hz = p.fs_hz if fs_hz is None else float(fs_hz)
+        where = "processing" if fs_hz is None else f"processing at a sample rate of {rate_hz:.6g} Hz"
+        try:
+            return core_settings(p, rate_hz)
+        except ValueError as exc:  # the core's own check of window_s, hop_s, max_lag_s, fs_hz and the filters
+            raise ConfigError(f"{where}: {exc}") from None
 
     def monitor_settings(self, load: str | None = None, fs_hz: float | None = None) -> MonitorSettings:
         """What the monitor needs from the config; `load` overrides decision.load (e.g. --load),
@@ -443,39 +546,110 @@ def default_config_text() -> str:
     return resources.files("bogiemon.config").joinpath(DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
 
 
-def load_config(path: str | Path | None = None) -> BogiemonConfig:
+def load_config(path: str | Path | None = None, *, log_warnings: bool = True) -> BogiemonConfig:
     """Load and validate a config file; None loads the shipped default. Raises ConfigError.
 
     Files named in the top-level `include` list (relative to the including file) are merged
     over it in order, table by table: how `bogiemon calibrate`'s thresholds reach the daemon.
+    An include must stay inside the including file's folder, `..` and symlinks resolved, unless
+    the file sets `allow_absolute_includes = true`. With log_warnings, credential files others
+    can read are logged as warnings (check-config prints them instead).
     """
     if path is None:
         return parse_config(default_config_text(), source="default config")
     path = Path(path)
     data = _read_toml(path)
-    for name in data.get("include", []):
-        if not isinstance(name, str):
-            raise ConfigError(f"{path}: include: expected a list of file names, got {name!r}")
-        fragment_path = path.parent / name
+    names = data.get("include", [])
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise ConfigError(f"{path}: include: expected a list of file names, e.g. include = [\"calibration.toml\"], got {_short(names)}")
+    allow_outside = data.get("allow_absolute_includes", False)
+    if not isinstance(allow_outside, bool):
+        raise ConfigError(f"{path}: allow_absolute_includes: expected true or false, got {_short(allow_outside)}")
+    for name in names:
+        fragment_path = _include_path(path, name, allow_outside)
         fragment = _read_toml(fragment_path)
-        if "include" in fragment:
-            raise ConfigError(f"{fragment_path}: an included file cannot include others")
-        data = _merge(data, fragment)
-    return validate_config(data, source=str(path))
+        for key in ("include", "allow_absolute_includes"):
+            if key in fragment:
+                raise ConfigError(f"{fragment_path}: an included file cannot set {key}: only the file that includes it")
+        try:
+            data = _merge(data, fragment)
+        except RecursionError:
+            raise ConfigError(f"{fragment_path}: its tables are nested too deeply to merge") from None
+    config = validate_config(data, source=str(path))
+    if log_warnings:
+        log = get_logger(component="config")
+        for warning in config.credential_warnings():
+            log.warning(warning, config=str(path))
+    return config
 
 
 def parse_config(text: str, source: str) -> BogiemonConfig:
+    """Validate config text (no includes: they need the file's folder). Raises ConfigError."""
     return validate_config(_parse_toml(text, source), source)
 
 
-def _read_toml(path: Path) -> dict[str, Any]:
+def _include_path(path: Path, name: str, allow_outside: bool) -> Path:
+    """Where `include` entry name of the file at path points; ConfigError when it must not go there."""
+    where = f"{path}: include {_short(name)}"
+    if not name or "\0" in name:
+        raise ConfigError(f"{where}: not a file name")
+    target = path.parent / name  # an absolute name replaces the folder
+    if allow_outside:
+        return target
+    if Path(name).is_absolute():
+        raise ConfigError(f"{where}: an absolute path; name a file in the config's folder relative to it, or set allow_absolute_includes = true")
     try:
-        text = path.read_text(encoding="utf-8")
+        folder, resolved = path.parent.resolve(), target.resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop
+        raise ConfigError(f"{where}: cannot resolve it: {exc}") from None
+    if not resolved.is_relative_to(folder):
+        raise ConfigError(
+            f"{where}: leads out of the config's folder {folder} (to {resolved}, '..' and symlinks resolved); "
+            "keep included files beside it, or set allow_absolute_includes = true"
+        )
+    return target
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    return _parse_toml(_read_text(path), str(path))
+
+
+def _read_text(path: Path) -> str:
+    """A config file's text: a regular file of at most MAX_CONFIG_BYTES, UTF-8."""
+    try:
+        # O_NONBLOCK: a FIFO named by mistake must not block the open; it is refused below.
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config file: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a UTF-8 text file; a config is TOML") from None
-    return _parse_toml(text, str(path))
+    except ValueError:  # a NUL in the name
+        raise ConfigError(f"{_short(str(path))}: not a file name") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = "a folder" if stat.S_ISDIR(mode) else "not a regular file"
+            raise ConfigError(f"{path}: {kind}; a config is a TOML text file")
+        raw = _read_at_most(fd, MAX_CONFIG_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config file: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; a config is a page of TOML: is this the right file?")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}); a config is TOML") from None
+
+
+def _read_at_most(fd: int, limit: int) -> bytes:
+    chunks, size = [], 0
+    while size < limit:
+        chunk = os.read(fd, min(limit - size, 1 << 16))
+        if not chunk:
+            break
+        chunks.append(chunk)
+        size += len(chunk)
+    return b"".join(chunks)
 
 
 def _parse_toml(text: str, source: str) -> dict[str, Any]:
@@ -483,6 +657,8 @@ def _parse_toml(text: str, source: str) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: invalid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: invalid TOML: arrays or tables nested too deeply") from None
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -497,11 +673,44 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 
 def validate_config(data: dict[str, Any], source: str) -> BogiemonConfig:
+    """The config tree from parsed TOML, and everything the service builds from it. Raises
+    ConfigError naming the source and every bad field, one per line."""
+    problems = _nul_problems(data)
+    if problems:
+        raise ConfigError(f"{source}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
     try:
-        return BogiemonConfig.model_validate(data)
+        config = BogiemonConfig.model_validate(data)
     except ValidationError as exc:
         problems = [_describe(err) for err in exc.errors()]
         raise ConfigError(f"{source}: {len(problems)} problem(s):\n  " + "\n  ".join(problems)) from None
+    except RecursionError:
+        raise ConfigError(f"{source}: tables nested too deeply") from None
+    problems = config.build_problems()
+    if problems:
+        raise ConfigError(f"{source}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
+    return config
+
+
+def _nul_problems(data: dict[str, Any]) -> list[str]:
+    """A NUL in any string: no file, device or channel name can hold one (open() raises ValueError)."""
+    problems = []
+    stack: list[tuple[str, Any]] = [("", data)]
+    while stack:  # a loop, not recursion: TOML nests as deep as its author likes
+        where, value = stack.pop()
+        if isinstance(value, str):
+            if "\0" in value:
+                problems.append(f"{where}: a NUL character (\\u0000) cannot be in a name or a path (got {_short(value)})")
+        elif isinstance(value, dict):
+            stack += [(f"{where}.{key}" if where else str(key), item) for key, item in value.items()]
+        elif isinstance(value, list):
+            stack += [(f"{where}.{i}", item) for i, item in enumerate(value)]
+    return sorted(problems)
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    """repr(value), cut to a line's worth: hostile input must not make a message of megabytes."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _describe(err: Any) -> str:
@@ -526,7 +735,7 @@ def _describe(err: Any) -> str:
         return f"{where}: unknown field{hint}"
     message = err["msg"].removeprefix("Value error, ")
     if err["type"] == "enum":
-        return f"{where}: {message}, got {err['input']!r}"
+        return f"{where}: {message}, got {_short(err['input'])}"
     if "input" in err and not isinstance(err["input"], dict):
-        return f"{where}: {message} (got {err['input']!r})"
+        return f"{where}: {message} (got {_short(err['input'])})"
     return f"{where}: {message}"

@@ -1,4 +1,9 @@
-"""`bogiemon check-config FILE`: validate a config file and print it resolved, defaults filled in."""
+"""`bogiemon check-config FILE`: validate a config file and print it resolved, defaults filled in.
+
+Validation builds what `run` builds (the core's settings at the configured rate, the decision
+and its models): a file it accepts, the service starts and a reload applies. Warnings (credential
+files others can read, a password in clear) come first, as comment lines.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +19,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon import tomlout
     from bogiemon.daemon.config import load_config
-    config = load_config(args.file)
+    config = load_config(args.file, log_warnings=False)  # printed here, where the reader looks
     print(f"# {args.file or 'default config'}: valid (digest {config.digest()})")
+    for warning in config.credential_warnings():
+        print(f"# warning: {warning}")
     print(tomlout.dumps(config.model_dump(mode="json")), end="")
     return 0

@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
         run_config = state_dir / "demo-run.toml"
         # The demo wagon was commissioned like any other: its calibration is included after the demo file.
         includes = ", ".join(f'"{p.resolve()}"' for p in (demo_path, calibration) if p is not None)
-        run_config.write_text(f"include = [{includes}]\n\n[state]\ndirectory = \"{state_dir.resolve()}\"\n")
+        # Its includes are the shipped files, outside the state directory: allowed here by name.
+        run_config.write_text(f"allow_absolute_includes = true\ninclude = [{includes}]\n\n[state]\ndirectory = \"{state_dir.resolve()}\"\n")
         config = load_config(run_config)
         src = config.source
         if not isinstance(src, SimulatedSourceConfig):

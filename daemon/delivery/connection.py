@@ -8,8 +8,10 @@ the cause and the file or setting to look at.
 
 from __future__ import annotations
 
+import os
 import socket
 import ssl
+import stat
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -39,19 +41,57 @@ class ConnectionSettings:
         return f"{self.host}:{self.port}"
 
 
+# A user name or a password is a line; a file larger than this one is the wrong file (a log, a
+# device), and reading it to its first line end must not take the daemon's memory.
+MAX_SECRET_BYTES = 4096
+
+
 def read_secret(path: str, what: str) -> str:
-    """The first line of a credentials file, without its line end."""
+    """The first line of a credentials file (a regular file), without its line end."""
     try:
-        with open(path, encoding="utf-8") as f:
-            line = f.readline()
+        # O_NONBLOCK: a FIFO must not block the open (it is refused below); a NUL in the name is a ValueError.
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:
         raise CredentialsError(f"{what} {path}: cannot read it: {exc.strerror or exc}") from None
+    except ValueError:
+        raise CredentialsError(f"{what} {path!r}: not a file name") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise CredentialsError(f"{what} {path}: not a regular file")
+        raw = os.read(fd, MAX_SECRET_BYTES + 1)  # a regular file: one read returns what is there, up to the limit
+    except OSError as exc:
+        raise CredentialsError(f"{what} {path}: cannot read it: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    line, newline, _ = raw.partition(b"\n")
+    if len(line) > MAX_SECRET_BYTES or (not newline and len(raw) > MAX_SECRET_BYTES):
+        raise CredentialsError(f"{what} {path}: its first line is longer than {MAX_SECRET_BYTES} bytes: not a credentials file")
+    try:
+        value = line.decode("utf-8").rstrip("\r")
     except UnicodeDecodeError:
         raise CredentialsError(f"{what} {path}: not UTF-8 text") from None
-    value = line.rstrip("\r\n")
     if not value:
         raise CredentialsError(f"{what} {path}: the file is empty")
     return value
+
+
+def readable_by_others(path: str) -> str | None:
+    """Why a credential or key file is exposed (its group or others may read it), or None.
+
+    A file that is missing or unreadable now gives None: it is named when it is read (at each
+    connection attempt: systemd's LoadCredential= puts it in place at start, mode 0400).
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    readers = [who for who, bit in (("its group", stat.S_IRGRP), ("others", stat.S_IROTH)) if mode & bit]
+    if not readers:
+        return None
+    return (
+        f"{path} is readable by {' and '.join(readers)} (mode {stat.S_IMODE(mode):04o}): "
+        f"chmod 600 {path}, or hand it over with systemd's LoadCredential="
+    )
 
 
 def _refuse_encrypted_key() -> bytes:

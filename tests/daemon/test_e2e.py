@@ -24,7 +24,8 @@ CALIBRATION = Path(str(resources.files("bogiemon.config").joinpath("demo_calibra
 
 
 def config_text(state_dir: Path, faults: list[str], duration_s: float, rate: float, extra: str = "") -> str:
-    return f"""include = ["{CALIBRATION}"]
+    return f"""allow_absolute_includes = true
+include = ["{CALIBRATION}"]
 
 [source]
 kind = "simulated"

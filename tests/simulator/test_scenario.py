@@ -178,7 +178,7 @@ def test_simulate_command_writes_a_recording_analyze_reads(tmp_path: Path, capsy
     assert summary.startswith(f"{out}: 30500 samples at 500 Hz (61 s), full load, 0:70,61:90 km/h on erri-high, seed 3")
     scenario = read_sidecar(tmp_path / "run.json")
     assert scenario.faults == (parse_fault("type_a:rear_outer:0.0@leading-left"),)
-    (tmp_path / "60s.toml").write_text("[processing]\nwindow_s = 60.0\n")
+    (tmp_path / "60s.toml").write_text('[processing]\nwindow_s = 60.0\n[decision]\nmethod = "thresholds"\n')
     assert main(["analyze", str(out), "--config", str(tmp_path / "60s.toml")]) == 0
     assert len(capsys.readouterr().out.splitlines()) == 3  # header, columns, one 60 s window
 

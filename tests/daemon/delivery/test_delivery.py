@@ -24,7 +24,7 @@ def test_a_reload_restarts_only_the_delivery_parts_whose_settings_changed(tmp_pa
     try:
         first = delivery.publisher
         assert first is not None and first.is_alive() and delivery.can_sink is None
-        delivery.apply(parse_config(base + mqtt + "[processing]\nwindow_s = 120.0\nhop_s = 20.0\n", "t"))
+        delivery.apply(parse_config(base + mqtt + "[processing]\nwindow_s = 120.0\nhop_s = 20.0\n[decision]\nmethod = \"thresholds\"\n", "t"))
         assert delivery.publisher is first  # nothing of its own changed
         delivery.apply(parse_config(base + mqtt.replace("port = 9", "port = 10"), "t"))
         assert delivery.publisher is not first and not first.is_alive()
