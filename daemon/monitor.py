@@ -5,6 +5,11 @@ sensors and the gating, decides the load state (configured, or estimated from th
 spectral shape with `decision.load = "auto"`), advances the suspension decision, commits the
 resulting events (with the decision state) to the event store and only then reports them to the
 sinks. The per-window judgement without the store (WindowJudge) also serves the evaluation.
+
+When the store refuses a commit (a full disk, read-only or failing media), `replay` stops with the
+error (the recording can be replayed once the disk is fixed), while the service, whose live data
+cannot be read twice, holds the events in memory and retries at every window: they are reported
+once committed, in order, and nothing is reported before; each failure is logged at crit.
 """
 
 from __future__ import annotations
@@ -17,14 +22,19 @@ from typing import Any
 from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Judgement
 from bogiemon.daemon.events import Event
 from bogiemon.daemon.health import HealthSettings, HealthState, HealthTracker, WindowHealth, assess_window
+from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import LoadModel
 from bogiemon.daemon.sinks import EventSink
-from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings, WindowIndicators
 from bogiemon.drivers.base import Block, SensorStatus
 
 GAP_MEMORY_S = 3600.0  # dropouts are judged over the last hour
 STATE_KEY = "monitor"
+# Events held while the store refuses commits: days of a faulty wagon's events (they come at
+# changes of state), a few MB at most. Past it the monitor stops (the service exits 3) rather
+# than grow without bound.
+MAX_HELD_EVENTS = 1000
 
 
 @dataclass(frozen=True)
@@ -129,14 +139,26 @@ class Monitor:
         store: EventStore,
         sinks: Sequence[EventSink] = (),
         observers: Sequence[Callable[[WindowReport], None]] = (),
+        hold_uncommitted: bool = False,
+        max_held_events: int = MAX_HELD_EVENTS,
     ) -> None:
         self.store = store
         self.sinks = list(sinks)
         self.observers = list(observers)
         self.counters = MonitorCounters()
         self.latest: WindowReport | None = None
+        self.hold_uncommitted = hold_uncommitted  # the service: hold what the store refuses, retry per window
+        self.max_held_events = max_held_events
+        self.held: list[Event] = []  # decided but not yet committed (the store refused), oldest first
+        self.store_failure: str | None = None  # the last refused commit's error, None once commits go through
+        self.store_failures = 0  # refused commits, ever
+        self._log = get_logger(component="store")
         saved = store.get_state(STATE_KEY) or {}
-        self._judge = WindowJudge(settings, DecisionState.from_dict(saved.get("decision")), HealthState.from_dict(saved.get("health")))
+        try:
+            decision, health = DecisionState.from_dict(saved.get("decision")), HealthState.from_dict(saved.get("health"))
+        except (KeyError, ValueError, TypeError, AttributeError) as exc:  # written by something else than a monitor
+            raise StoreError(f"{store.path}: the saved monitor state does not decode ({exc!r}); move the store aside to start afresh") from None
+        self._judge = WindowJudge(settings, decision, health)
         self._status_spans: deque[tuple[float, float, tuple[SensorStatus, ...]]] = deque(maxlen=10_000)
         self._gap_times: deque[float] = deque(maxlen=10_000)
         self._core: IndicatorStream | None = None
@@ -156,7 +178,9 @@ class Monitor:
         return {"decision": self._judge.decider.state.as_dict(), "health": self._judge.health.state.as_dict()}
 
     def save_state(self) -> None:
-        self.store.put_state(STATE_KEY, self.state_dict())
+        """Commit the decision state, with any events still held. Raises StoreWriteError when the
+        store refuses it, unless hold_uncommitted (then store_failure says so)."""
+        self._commit([])
 
     def feed(self, block: Block) -> list[Event]:
         """Process one block; return the events it caused (already committed and reported)."""
@@ -189,16 +213,49 @@ class Monitor:
             self.counters.gated += 1
         else:
             self.counters.sensor_fault_windows += 1
-        if events:
-            self.store.append(events, state={STATE_KEY: self.state_dict()})  # durable before reported
-            self.counters.events += len(events)
-            for event in events:
-                for sink in self.sinks:
-                    sink.publish(event)
+        if events or self.held:
+            events = self._commit(events)
         self.latest = WindowReport(window, health, judgement, self.mode, tuple(events), judged.load, judged.p_full)
         for observer in self.observers:
             observer(self.latest)
         return events
+
+    def _commit(self, new: list[Event]) -> list[Event]:
+        """Commit the held events and new ones with the current state, then report them; returns
+        what was committed (nothing while the store refuses, with hold_uncommitted)."""
+        batch = [*self.held, *new]
+        try:
+            to_insert = batch
+            if self.held:
+                # A commit reported as failed may still have reached the disk (an I/O error
+                # after the write): what is already there is not inserted twice, only reported.
+                stored = self.store.committed_ids([e.event_id for e in self.held])
+                to_insert = [e for e in batch if e.event_id not in stored]
+            self.store.append(to_insert, state={STATE_KEY: self.state_dict()})  # durable before reported
+        except StoreError as exc:  # StoreWriteError, or a read of the failing store
+            if not self.hold_uncommitted:
+                raise
+            self.held = batch
+            self.store_failure = str(exc)
+            self.store_failures += 1
+            self._log.critical(
+                "event store refuses commits: events held in memory and retried at every window, none reported until committed",
+                error=str(exc), held=len(batch), held_kinds=[e.kind.value for e in batch], failures=self.store_failures,
+            )  # fmt: skip
+            if len(batch) > self.max_held_events:
+                raise StoreWriteError(
+                    f"{self.store.path}: {len(batch)} events could not be committed, more than the {self.max_held_events} "
+                    f"held in memory: stopping ({exc})"
+                ) from None
+            return []
+        if self.store_failure is not None:
+            self._log.warning("event store takes commits again", committed=len(batch), failures=self.store_failures)
+        self.held, self.store_failure = [], None
+        self.counters.events += len(batch)
+        for event in batch:
+            for sink in self.sinks:
+                sink.publish(event)
+        return batch
 
     def _status_over(self, window: WindowIndicators) -> tuple[SensorStatus, SensorStatus, SensorStatus]:
         while self._status_spans and self._status_spans[0][1] <= window.start_s:  # windows only move on

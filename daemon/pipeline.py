@@ -15,6 +15,7 @@ from collections.abc import Callable
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.ringbuffer import BlockRing, RingClosed
+from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.base import EndOfStream, Source
 
 READ_TIMEOUT_S = 0.5
@@ -87,6 +88,11 @@ class Pipeline:
                     self.monitor.feed(block)
                 self.last_progress_monotonic = time.monotonic()
                 self.first_block.set()
+        except StoreError as exc:
+            # The event store refused what the monitor could not hold: a fault of the storage, not
+            # a bug. Whoever runs the pipeline reports it: replay as one line, the service at crit.
+            self.error = exc
+            self._stop.set()
         except BaseException as exc:
             self.error = exc
             self._log.error("processing thread failed", error=repr(exc))

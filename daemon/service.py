@@ -25,12 +25,15 @@ from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink, LogSink
-from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
 
 SourceFactory = Callable[[BogiemonConfig], Source]
 STATUS_PERIOD_S = 10.0
 EXIT_OK, EXIT_INTERNAL_ERROR = 0, 1
+# The event store refused commits and the service stopped holding what it refused (README,
+# "When the storage fails"): non-zero, so that systemd restarts it and the journal shows why.
+EXIT_STORE_FAILED = 3
 
 
 def status_line(report: WindowReport | None, monitor: Monitor) -> str:
@@ -104,9 +107,20 @@ class Service:
         signal.signal(signal.SIGHUP, on_reload)
 
     def run(self) -> int:
-        store = EventStore(self.config.state.directory)
+        try:
+            store = EventStore(self.config.state.directory)
+        except StoreError as exc:
+            # A store bogiemon refuses (damaged, empty, newer, unwritable) is left as it is; the
+            # keeper reads why in the journal at crit and in systemctl status. The CLI prints the
+            # same line and exits 2.
+            self._log.critical("cannot open the event store, not starting", error=str(exc))
+            self.notifier.status(f"not started: {exc}")
+            raise
         self.delivery = Delivery(store.path.parent)  # MQTT and CAN alarms, each in a thread of its own
-        monitor = Monitor(self.config.monitor_settings(self.load), store, [*self.sinks, self.delivery], self.observers)
+        # Live data cannot be read twice: what the store refuses is held and retried, not dropped.
+        monitor = Monitor(
+            self.config.monitor_settings(self.load), store, [*self.sinks, self.delivery], self.observers, hold_uncommitted=True
+        )
         self.delivery.start(self.config, monitor)
         self._log.info(
             "starting", config=str(self.config_path or "default"), config_hash=self.config.digest(),
@@ -116,6 +130,7 @@ class Service:
         pipeline = self._start_pipeline(monitor)
         ready = False
         last_status = 0.0
+        store_failures = 0  # the monitor's count when STATUS last told it: a new failure is told at once
         tick_s = min(1.0, (self.notifier.watchdog_interval_s or 2.0) / 2)
         try:
             while not self.flags.stop.wait(tick_s):
@@ -128,9 +143,12 @@ class Service:
                     self._log.info("ready", fs_hz=pipeline.source.fs_hz)
                 if self._data_moves(pipeline):
                     self.notifier.watchdog()
-                if time.monotonic() - last_status >= STATUS_PERIOD_S:
-                    last_status = time.monotonic()
-                    self.notifier.status(status_line(monitor.latest, monitor))
+                if time.monotonic() - last_status >= STATUS_PERIOD_S or monitor.store_failures != store_failures:
+                    last_status, store_failures = time.monotonic(), monitor.store_failures
+                    line = status_line(monitor.latest, monitor)
+                    if monitor.store_failure is not None:
+                        line = f"EVENT STORE FAILING, {len(monitor.held)} events held uncommitted ({monitor.store_failure}); {line}"
+                    self.notifier.status(line)
                 if pipeline.finished.is_set():  # a finite source ended, or a thread failed
                     break
         finally:
@@ -138,9 +156,16 @@ class Service:
             pipeline.stop()
             pipeline.source.close()
             self.delivery.close()  # says "offline"; what is undelivered stays in the outbox
-            monitor.save_state()
+            monitor.save_state()  # with the held events, a last try; a refusal is logged at crit, never raised
             store.close()
             self._log.info("stopped", counters=vars(monitor.counters), source=pipeline.source.counters.as_dict(), ring=vars(pipeline.ring.counters))
+        if monitor.store_failure is not None or isinstance(pipeline.error, StoreError):
+            self._log.critical(
+                "stopped after the event store refused commits: the events held are lost, the last committed alarm state stands",
+                lost_events=len(monitor.held), lost_kinds=[e.kind.value for e in monitor.held],
+                error=monitor.store_failure or str(pipeline.error),
+            )  # fmt: skip
+            return EXIT_STORE_FAILED
         return EXIT_INTERNAL_ERROR if pipeline.error is not None else EXIT_OK
 
     def _start_pipeline(self, monitor: Monitor) -> Pipeline:
@@ -159,24 +184,55 @@ class Service:
         return time.monotonic() - pipeline.last_progress_monotonic < interval_s / 2
 
     def _reload(self, pipeline: Pipeline, monitor: Monitor) -> Pipeline:
+        """SIGHUP: load, validate and apply the config file again; returns the pipeline that runs.
+
+        Any failure rejects the reload, not only a ConfigError: a file that cannot be read, a
+        setting that cannot be built, a source or a delivery part that will not start. It is
+        logged and told to systemd, and the running config stays; what was applied of the new
+        one is put back. The service goes on either way.
+        """
         self.notifier.reloading()
+        old, old_settings = self.config, monitor.settings
+
+        def reject(exc: Exception, stage: str) -> None:
+            # A ConfigError is written for the keeper; anything else is a bug: its class says which.
+            reason = str(exc) if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {exc}"
+            self._log.error("reload rejected, keeping the running config", reason=reason, stage=stage)
+            self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in reason.splitlines()))
+
         try:
             new = load_config(self.config_path)
-            new.check_models()
-        except ConfigError as exc:
-            self._log.error("reload rejected, keeping the running config", reason=str(exc))
-            self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in str(exc).splitlines()))
+            # Everything the monitor takes, built before anything changes (the fused model's fit included).
+            settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
+        except Exception as exc:
+            reject(exc, "load")
             return pipeline
-        old, self.config = self.config, new
+        restart_source = new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline
+        source_stopped = False
+        try:
+            self.config = new
+            pipeline.with_monitor(lambda m: m.reconfigure(settings))
+            self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
+            if restart_source:
+                source_stopped = True
+                pipeline.stop()
+                pipeline.source.close()
+                pipeline = self._start_pipeline(monitor)
+        except Exception as exc:
+            try:  # what ran before, as it ran: the monitor's settings (its alarm state carries over), delivery, source
+                self.config = old
+                pipeline.with_monitor(lambda m: m.reconfigure(old_settings))
+                self.delivery.apply(old)
+                if source_stopped:
+                    pipeline = self._start_pipeline(monitor)
+            except Exception as restore_exc:
+                self._log.critical("reload failed and the running config could not be restored, stopping",
+                                   reason=f"{type(exc).__name__}: {exc}", restore=f"{type(restore_exc).__name__}: {restore_exc}")  # fmt: skip
+                raise
+            reject(exc, "apply")
+            return pipeline
         if new.state != old.state:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
-        settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
-        pipeline.with_monitor(lambda m: m.reconfigure(settings))
-        self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
-        if new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline:
-            pipeline.stop()
-            pipeline.source.close()
-            pipeline = self._start_pipeline(monitor)
         self._log.info("reloaded", config_hash=new.digest())
         self._warn_if_not_commissioned(new)
         self.notifier.ready(status="reloaded")

@@ -48,8 +48,17 @@ def parse_since(text: str, now_s: float) -> float:
     return moment.timestamp()
 
 
+def format_time(time_s: float) -> str:
+    """Unix seconds as ISO 8601 UTC; a time no calendar holds (inf, nan, 1e300: a store written
+    before times were checked at the source) as its number, so that listing a store never fails."""
+    try:
+        return datetime.fromtimestamp(time_s, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    except (OverflowError, OSError, ValueError):
+        return f"time_s={time_s!r}"
+
+
 def format_event(event: Event) -> str:
-    when = datetime.fromtimestamp(event.time_s, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    when = format_time(event.time_s)
     values = " ".join(f"{k}={v:.4g}" for k, v in event.indicators.items())
     extra = ""
     if "problems" in event.details:

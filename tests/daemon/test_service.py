@@ -1,15 +1,26 @@
 """The service in-process over a finite source: READY after data, STATUS, events, clean exit."""
 
+import json
+import os
+import signal
 import socket
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
-from bogiemon.daemon.config import parse_config
+import numpy as np
+import pytest
+import structlog
+
+from bogiemon.daemon.config import BogiemonConfig, load_config, parse_config
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.service import Service
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.daemon.store import EventStore
-from bogiemon.drivers.base import MemorySource
-from tests.daemon.synthetic import as_blocks, bogie_accel
+from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, MemorySource, Source
+from bogiemon.drivers.recording import write_csv_recording
+from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel
+from tests.daemon.test_e2e import Daemon
 
 
 class FiniteMemorySource(MemorySource):
@@ -36,3 +47,126 @@ def test_service_runs_a_finite_source_to_its_end_and_reports_to_systemd(tmp_path
     assert [e.kind.value for e in sink.events] == ["SUSPECTED", "CONFIRMED"]
     stored = EventStore(parse_config(short_config.read_text(), "t").state.directory, readonly=True).events()
     assert stored == sink.events
+
+
+# --- reload (issue 17): any failure rejects it, and the running config stays ---------------------
+
+
+@pytest.fixture
+def own_signal_handlers() -> Iterator[None]:
+    """The service installs its SIGTERM, SIGINT and SIGHUP handlers in this process: put pytest's back."""
+    saved = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
+    yield
+    for signum, handler in saved.items():
+        signal.signal(signum, handler)
+
+
+class Feed:
+    """One stream of blocks for every source the factory opens, so that a source opened again goes
+    on where the last one stopped. At block hup_at it writes the config file anew and sends this
+    process a real SIGHUP, then holds until released."""
+
+    def __init__(self, blocks: list[Block], hup_at: int, config_path: Path, new_text: str) -> None:
+        self.blocks, self.hup_at, self.config_path, self.new_text = blocks, hup_at, config_path, new_text
+        self.next = 0
+        self.released = threading.Event()
+
+    def read(self, timeout_s: float) -> Block | None:
+        if self.next == self.hup_at and not self.released.is_set():
+            if self.config_path.read_text() != self.new_text:
+                self.config_path.write_text(self.new_text)
+                os.kill(os.getpid(), signal.SIGHUP)
+            self.released.wait(timeout_s)
+            return None
+        if self.next >= len(self.blocks):
+            raise EndOfStream
+        self.next += 1
+        return self.blocks[self.next - 1]
+
+
+class FeedSource(Source):
+    finite = True
+
+    def __init__(self, feed: Feed) -> None:
+        self.fs_hz = FS_HZ
+        self.counters = HealthCounters()
+        self.feed = feed
+
+    def read(self, timeout_s: float) -> Block | None:
+        return self.feed.read(timeout_s)
+
+
+def notify_messages(sock: socket.socket) -> list[str]:
+    messages = []
+    while True:
+        try:
+            messages.append(sock.recv(4096).decode())
+        except BlockingIOError:
+            return messages
+
+
+def test_a_reload_whose_new_source_raises_is_rejected_and_the_old_source_and_config_go_on(
+    tmp_path: Path, short_config: Path, own_signal_handlers: None
+) -> None:
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(str(tmp_path / "notify"))
+    listener.settimeout(0)
+    old_text = short_config.read_text()
+    old_digest = load_config(short_config).digest()
+    # A valid config whose [source] changed: the service stops the source and opens the new one, which fails.
+    feed = Feed(as_blocks(bogie_accel(30, seed=2, pitch_roll_coupling=1.0)), 10, short_config, old_text + "[source]\nmax_block_s = 0.5\n")
+    opened: list[float] = []
+
+    def open_source(config: BogiemonConfig) -> Source:
+        opened.append(config.source.max_block_s)
+        if config.source.max_block_s == 0.5:
+            raise RuntimeError("the new bus exploded")
+        if len(opened) > 1:
+            feed.released.set()  # the old source, opened again: the stream goes on
+        return FeedSource(feed)
+
+    sink = MemorySink()
+    service = Service(short_config, open_source, notifier=Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify")}), sinks=[sink])
+    service.install_signal_handlers()
+    with structlog.testing.capture_logs() as logs:
+        assert service.run() == 0
+    assert opened == [1.0, 0.5, 1.0]
+    assert "READY=1\nSTATUS=reload rejected: RuntimeError: the new bus exploded" in notify_messages(listener)
+    rejected = [entry for entry in logs if entry["event"] == "reload rejected, keeping the running config"]
+    assert [(r["log_level"], r["stage"], r["reason"]) for r in rejected] == [("error", "apply", "RuntimeError: the new bus exploded")]
+    assert service.config.digest() == old_digest
+    assert [(e.kind.value, e.config_hash) for e in sink.events] == [("SUSPECTED", old_digest), ("CONFIRMED", old_digest)]
+    assert feed.next == len(feed.blocks)  # every block went through, none twice
+
+
+@pytest.mark.slow  # a recording replayed at real time: about 20 s
+def test_sighup_after_include_5_and_after_window_s_inf_keeps_the_daemon_on_its_old_config(tmp_path: Path, short_config: Path) -> None:
+    # 6 s of a healthy bogie, then 14 s with pitch coupled to roll: replayed at real time, the
+    # alarm comes well after both reloads, from whatever config is running then.
+    accel = np.vstack([bogie_accel(6, seed=1), bogie_accel(14, seed=2, pitch_roll_coupling=1.0)])
+    recording = tmp_path / "run.csv"
+    write_csv_recording(recording, 1.7e9 + np.arange(accel.shape[0]) / FS_HZ, accel)
+    good = short_config.read_text() + f'[source]\nkind = "replay"\npath = "{recording}"\nrealtime = true\n'
+    short_config.write_text(good)
+    old_digest = load_config(short_config).digest()
+    daemon = Daemon(tmp_path, good)
+    assert daemon.config_path == short_config
+    daemon.wait_for("READY=1")
+    bad_configs = [("include = 5\n" + good, "include: expected a list of file names"),
+                   (good.replace("window_s = 6.0", "window_s = inf"), "processing.window_s: Input should be a finite number")]  # fmt: skip
+    for text, named in bad_configs:
+        daemon.config_path.write_text(text)
+        daemon.proc.send_signal(signal.SIGHUP)
+        daemon.wait_for("RELOADING=1")
+        rejected = daemon.wait_for("READY=1")
+        assert rejected.startswith("READY=1\nSTATUS=reload rejected: ") and named in rejected
+        assert daemon.proc.poll() is None
+    status, out, err = daemon.finish(timeout_s=60)  # the recording ends: the service stops by itself
+    assert status == 0, err
+    assert "Traceback" not in err
+    logged = [json.loads(line[3:]) for line in out.splitlines() if line.startswith("<")]
+    rejections = [r for r in logged if r["event"] == "reload rejected, keeping the running config"]
+    assert [(r["stage"], named in r["reason"]) for r, (_, named) in zip(rejections, bad_configs, strict=True)] == [("load", True), ("load", True)]
+    assert not any(r["event"] == "reloaded" for r in logged)
+    stored = EventStore(tmp_path / "state", readonly=True).events()
+    assert [(e.kind.value, e.config_hash) for e in stored] == [("SUSPECTED", old_digest), ("CONFIRMED", old_digest)]
