@@ -1,7 +1,9 @@
 """`bogiemon listen --broker HOST:PORT`: the back office's side, for bench tests and demos.
 
 Subscribes to every wagon's events, status and state under --prefix and prints each event once
-(deduplicated by event_id), or commits it to --store. Credentials come from files only.
+(deduplicated by event_id), or commits it to --store. Credentials come from files only, and a
+password goes over TLS only (unless --allow-plaintext). A message outside the schema is said on
+stderr with its wagon, counted and acknowledged; the counts are printed at the end.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--tls-cert", metavar="F", help="client certificate (PEM), with --tls-key")
     p.add_argument("--tls-key", metavar="F", help="the client certificate's private key (PEM, not encrypted)")
     p.add_argument("--username-file", metavar="F", help="a file holding the MQTT user name")
-    p.add_argument("--password-file", metavar="F", help="a file holding the MQTT password")
+    p.add_argument("--password-file", metavar="F", help="a file holding the MQTT password (needs TLS, or --allow-plaintext)")
+    p.add_argument("--allow-plaintext", action="store_true", help="send the password without TLS (a bench's broker on loopback only)")
     p.add_argument("--client-id", help="the MQTT client id, which the broker keeps the session under (default: bogiemon-listen-HOSTNAME)")
     p.add_argument("--store", metavar="FILE.sqlite3", help="commit each event to this SQLite file (deduplicated across runs too)")
     p.add_argument("--json", action="store_true", help="one JSON message per line (the events, and the status with --status)")
@@ -54,10 +57,13 @@ def connection_from_args(args: argparse.Namespace) -> ConnectionSettings:
         raise ListenError("--tls-cert and --tls-key go together")
     if args.password_file and not args.username_file:
         raise ListenError("--password-file needs --username-file")
+    tls = bool(args.tls or args.tls_ca or args.tls_cert)
+    if args.password_file and not tls and not args.allow_plaintext:
+        raise ListenError("--password-file without TLS would send the password in clear: add --tls or --tls-ca (or --allow-plaintext, on a bench)")
     return ConnectionSettings(
         host=host,
         port=port,
-        tls=bool(args.tls or args.tls_ca or args.tls_cert),
+        tls=tls,
         ca_file=args.tls_ca or "",
         cert_file=args.tls_cert or "",
         key_file=args.tls_key or "",
@@ -84,12 +90,18 @@ def format_received(received: Received, as_json: bool, with_status: bool) -> str
         return f"{s.wagon_id}  status {when}  mode {s.mode}, {window}, outbox {s.outbox.pending_events} events pending"
     if received.state is not None and not as_json:
         return f"{received.wagon_id}  is {received.state}"
+    if received.cleared and not as_json:
+        return f"{received.wagon_id}  {received.leaf} deleted at the broker"
     return None
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.delivery.connection import readable_by_others
     from bogiemon.daemon.delivery.listener import Listener, ListenError, Received, ReceivedStore
     connection = connection_from_args(args)
+    for secret in (args.password_file, args.tls_key):  # the files whose content must stay private
+        if secret and (exposed := readable_by_others(secret)) is not None:
+            print(f"bogiemon listen: warning: {exposed}", file=sys.stderr, flush=True)
     if args.count is not None and args.count < 1:
         raise ListenError(f"--count: expected a positive number of events, got {args.count}")
     store = ReceivedStore(args.store) if args.store else None
@@ -111,11 +123,17 @@ def run(args: argparse.Namespace) -> int:
         store=store,
         on_message=show,
         on_link=lambda text: print(f"bogiemon listen: {text}", file=sys.stderr, flush=True),
+        recent_events=0,  # printed or stored as they come: a long run holds none in memory
+        recent_statuses=0,
     )
     try:
         listener.run(stop, max_events=args.count)
+    except KeyboardInterrupt:
+        print(f"bogiemon listen: {listener.summary()}", file=sys.stderr, flush=True)
+        raise
     finally:
         signal.signal(signal.SIGTERM, previous)
         if store is not None:
             store.close()
+    print(f"bogiemon listen: {listener.summary()}", file=sys.stderr, flush=True)
     return 0

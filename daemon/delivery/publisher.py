@@ -11,6 +11,10 @@ factory (transport.py): paho by default, memory_transport in tests.
 
 Connection failures are retried with a doubling, jittered backoff; each change of the link's
 state (connected, lost, failing for a new reason) is logged once, not each attempt.
+
+What the store holds is read back as it was written (any float, any nesting): an event that does
+not fit bogiemon.event/1 (a reader would refuse it) is not sent, but logged once and counted, and
+it stays in the store and pending; the rest of the outbox goes on.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from bogiemon.daemon.delivery.connection import (
     ConnectionSettings,
     CredentialsError,
@@ -33,7 +39,17 @@ from bogiemon.daemon.delivery.connection import (
     describe_refusal,
 )
 from bogiemon.daemon.delivery.paho_transport import paho_transport
-from bogiemon.daemon.delivery.schema import STATE_OFFLINE, STATE_ONLINE, EventMessage, StatusMessage, Topics, dump
+from bogiemon.daemon.delivery.schema import (
+    STATE_OFFLINE,
+    STATE_ONLINE,
+    SchemaError,
+    StatusMessage,
+    Topics,
+    describe,
+    encode_event,
+    encode_status,
+    stored_status,
+)
 from bogiemon.daemon.delivery.transport import MqttTransport, Reason, TransportEvents, TransportFactory, Will
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.store import EventStore, OutboxCounts, PendingEvent, PendingStatus
@@ -44,6 +60,7 @@ StatusSource = Callable[[OutboxCounts, float], StatusMessage]  # (outbox counts,
 IO_WAIT_S = 0.05  # the network loop's select timeout: the latency of a new event at worst
 TRIM_PERIOD_S = 1.0  # how often the outbox bound is enforced
 FETCH_N = 100  # rows read from the store at a time
+MAX_NOTED_UNSENDABLE = 10_000  # unsendable records remembered, so that each is logged once
 STOP_FLUSH_S = 1.0  # at stop, how long the "offline" state and the last PUBACKs may take
 
 
@@ -80,6 +97,8 @@ class PublisherCounters:
     status_queued: int = 0
     dropped_status: int = 0  # by the outbox bound, since start
     dropped_events: int = 0
+    unsendable_events: int = 0  # pending events that do not fit the schema: not sent, left pending
+    unsendable_status: int = 0  # status messages not queued or not sent: they did not fit the schema
 
 
 class TokenBucket:
@@ -149,6 +168,8 @@ class OutboxPublisher:
         self._bucket = TokenBucket(settings.max_rate_msgs_per_s, max(1.0, settings.max_rate_msgs_per_s), clock())
         self._session: _Session | None = None
         self._last_state: tuple[str, str] | None = None
+        self._unsendable: set[tuple[str, int]] = set()  # ("event" or "status", seq) of records that cannot be sent
+        self._last_status_problem: str | None = None
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._log = get_logger(component="mqtt", broker=settings.connection.address, client_id=self._client_id)
@@ -315,19 +336,45 @@ class OutboxPublisher:
             item = self._next_item(store, session, now_s)
             if item is None:
                 return
+            if isinstance(item, PendingEvent):
+                try:
+                    topic, payload, retain = self._topics.events, encode_event(self.settings.wagon_id, item.seq, item.event), False
+                except SchemaError as exc:
+                    self._skip_unsendable(item, exc)
+                    continue
+            else:
+                try:
+                    topic, payload, retain = self._topics.status, stored_status(item.body), True
+                except SchemaError as exc:
+                    self._skip_unsendable(item, exc)
+                    continue
             if not self._bucket.take(now_s):
                 self._put_back(session, item)
                 return
-            if isinstance(item, PendingEvent):
-                topic, payload, retain = self._topics.events, dump(EventMessage.from_event(self.settings.wagon_id, item.seq, item.event)), False
-            else:
-                topic, payload, retain = self._topics.status, item.body, True
             sent = session.transport.publish(topic, payload, retain=retain)
             if sent.error is not None:
                 session.end_reason = LinkProblem("lost", f"publish failed: {sent.error}")
                 return
             self.counters.published += 1
             session.inflight[sent.mid] = ("event", item.seq) if isinstance(item, PendingEvent) else ("status", item.seq)
+
+    def _skip_unsendable(self, item: PendingEvent | PendingStatus, problem: SchemaError) -> None:
+        """A record a reader would refuse: said once, counted once; it stays in the store, pending
+        (a status record until the outbox bound drops it)."""
+        key = ("event" if isinstance(item, PendingEvent) else "status", item.seq)
+        if key in self._unsendable:
+            return
+        if len(self._unsendable) < MAX_NOTED_UNSENDABLE:
+            self._unsendable.add(key)
+        if isinstance(item, PendingEvent):
+            self.counters.unsendable_events += 1
+            self._log.error(
+                "mqtt event not sent: it does not fit bogiemon.event/1; it stays in the event store",
+                seq=item.seq, event_id=item.event.event_id, kind=item.event.kind.value, reason=str(problem),
+            )  # fmt: skip
+        else:
+            self.counters.unsendable_status += 1
+            self._log.error("mqtt status not sent: the stored record does not fit its schema", seq=item.seq, reason=str(problem))
 
     def _next_item(self, store: EventStore, session: _Session, now_s: float) -> PendingEvent | PendingStatus | None:
         """The oldest pending event not yet sent on this session, else the oldest status record."""
@@ -371,8 +418,18 @@ class OutboxPublisher:
 
     def _queue_status(self, store: EventStore) -> None:
         assert self.status_source is not None
-        message = self.status_source(store.outbox_counts(), self._wall_clock())
-        store.queue_status(message.time_s, dump(message))
+        try:
+            message = self.status_source(store.outbox_counts(), self._wall_clock())
+            body = encode_status(message)
+        except (SchemaError, ValidationError) as exc:  # the next period may fit again
+            self.counters.unsendable_status += 1
+            problem = describe(exc) if isinstance(exc, ValidationError) else str(exc)
+            if problem != self._last_status_problem:  # once per kind of problem, not every period
+                self._last_status_problem = problem
+                self._log.error("mqtt status not queued: it does not fit bogiemon.status/1", reason=problem)
+            return
+        self._last_status_problem = None
+        store.queue_status(message.time_s, body)
         self.counters.status_queued += 1
         self._wake.set()
 

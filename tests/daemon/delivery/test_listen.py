@@ -70,8 +70,10 @@ def test_listen_with_wrong_credentials_ends_with_one_line(tmp_path: Path, mosqui
     try:
         (tmp_path / "user").write_text("office\n")
         (tmp_path / "password").write_text("wrong-Pa55\n")
+        (tmp_path / "password").chmod(0o600)  # private, as it should be: no warning
         proc = subprocess.run(
-            [BOGIEMON, "listen", "--broker", f"127.0.0.1:{b.port}", "--username-file", str(tmp_path / "user"), "--password-file", str(tmp_path / "password")],
+            [BOGIEMON, "listen", "--broker", f"127.0.0.1:{b.port}", "--username-file", str(tmp_path / "user"), "--password-file", str(tmp_path / "password"),
+             "--allow-plaintext"],
             capture_output=True, text=True, timeout=20,
         )  # fmt: skip
     finally:
@@ -90,8 +92,49 @@ def test_listen_with_wrong_credentials_ends_with_one_line(tmp_path: Path, mosqui
         (["--broker", "h:1", "--password-file", "p"], "--password-file needs --username-file"),
         (["--broker", "h:1", "--username-file", "/nonexistent/user"], "MQTT username file /nonexistent/user: cannot read it: No such file or directory"),
         (["--broker", "h:1", "--tls-ca", "/nonexistent/ca.pem"], "CA file /nonexistent/ca.pem: no such file"),
+        (["--broker", "h:1", "--username-file", "u", "--password-file", "p"],
+         "--password-file without TLS would send the password in clear: add --tls or --tls-ca (or --allow-plaintext, on a bench)"),
+        (["--broker", "h:1", "--username-file", "/nonexistent/user", "--password-file", "p", "--allow-plaintext"],
+         "MQTT username file /nonexistent/user: cannot read it: No such file or directory"),
+        (["--broker", "h:1", "--username-file", "/nonexistent/user", "--password-file", "p", "--tls"],
+         "MQTT username file /nonexistent/user: cannot read it: No such file or directory"),
     ],
 )  # fmt: skip
 def test_listen_argument_errors_are_one_line(args: list[str], expected: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["listen", *args]) == 2
     assert capsys.readouterr().err == f"bogiemon: error: {expected}\n"
+
+
+@pytest.mark.parametrize(("mode", "warning"), [(0o644, "its group and others (mode 0644)"), (0o640, "its group (mode 0640)"), (0o600, None)])
+def test_listen_warns_when_the_password_file_is_readable_by_others(tmp_path: Path, mode: int, warning: str | None, capsys: pytest.CaptureFixture[str]) -> None:
+    password = tmp_path / "password"
+    password.write_text("Pa55\n")
+    password.chmod(mode)
+    assert main(["listen", "--broker", "h:1", "--username-file", "/nonexistent/user", "--password-file", str(password), "--tls"]) == 2
+    said = [] if warning is None else [
+        f"bogiemon listen: warning: {password} is readable by {warning}: chmod 600 {password}, or hand it over with systemd's LoadCredential="
+    ]  # fmt: skip
+    assert capsys.readouterr().err.splitlines() == [*said, "bogiemon: error: MQTT username file /nonexistent/user: cannot read it: No such file or directory"]
+
+
+def test_listen_skips_a_poison_message_once_and_it_is_not_delivered_again_after_a_restart(tmp_path: Path, broker: Broker) -> None:
+    events = [EventMessage.from_event(WAGON, seq, e) for seq, e in enumerate(make_events(2), start=1)]
+    topic = f"fleet/test/{WAGON}/events"
+    poison = {**json.loads(dump(events[0])), "event_id": "poison", "time_s": 1e300}  # crashed the listener at every restart (issue 17)
+    store = tmp_path / "received.sqlite3"
+    proc = start_listen(broker.port, "--store", str(store), "--count", "1", "--client-id", "office")
+    publish(broker.port, [(topic, json.dumps(poison)), (topic, dump(events[0]))])
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert err.splitlines() == [
+        f"bogiemon listen: {WAGON}: not a valid message on {topic}: time_s: Input should be less than or equal to 10000000000",
+        "bogiemon listen: events kept: 1, copies dropped: 0, invalid messages skipped: 1",
+    ]
+    proc = start_listen(broker.port, "--store", str(store), "--count", "1", "--client-id", "office")  # the same session
+    publish(broker.port, [(topic, dump(events[1]))])
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert err.splitlines() == ["bogiemon listen: events kept: 1, copies dropped: 0, invalid messages skipped: 0"]  # nothing came again
+    assert out.splitlines()[0].startswith(f"{WAGON}  #2      ")
+    rows = sqlite3.connect(store).execute("SELECT event_id FROM received ORDER BY n").fetchall()
+    assert [r[0] for r in rows] == [e.event_id for e in events]
