@@ -1,0 +1,48 @@
+"""The fuzz suite's short run (bench/fuzz.py --quick, the CI run of issue 17): a few thousand inputs per
+target through every decoder and parser, in a subprocess, as `make fuzz` runs them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+FUZZ = REPO / "bench" / "fuzz.py"
+# Every decoder and parser the issue names: the CAN frame decoder in both layouts, the serial packet
+# parser and source, the CSV reader, the CAN log readers, the config loader, the MQTT schema and the
+# listener, the publisher's outbox and the event store's reader.
+TARGETS = {"can-hub", "can-per-node", "serial-parser", "serial-source", "csv", "canlog-log", "canlog-asc", "canlog-blf",
+           "config", "mqtt-schema", "mqtt-listen", "outbox", "store"}  # fmt: skip
+RUN_DEADLINE_S = 900.0  # a safety net: the quick run takes about a minute
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.CompletedProcess[str], dict[str, Any]]:
+    folder = tmp_path_factory.mktemp("fuzz")
+    figures = folder / "fuzz.json"
+    done = subprocess.run(
+        [sys.executable, str(FUZZ), "--quick", "--json", str(figures), "--crash-dir", str(folder / "crashes")],
+        cwd=REPO, capture_output=True, text=True, timeout=RUN_DEADLINE_S,
+    )  # fmt: skip
+    assert figures.exists(), f"the fuzz run wrote no figures (exit status {done.returncode}):\n{done.stderr[-4000:]}"
+    return done, json.loads(figures.read_text())
+
+
+@pytest.mark.slow
+def test_the_quick_fuzz_run_covers_every_target_with_a_thousand_inputs_or_more(quick_run: tuple[subprocess.CompletedProcess[str], dict[str, Any]]) -> None:
+    _, figures = quick_run
+    assert set(figures["targets"]) == TARGETS
+    assert {name: t["inputs"] >= 1000 for name, t in figures["targets"].items()} == dict.fromkeys(TARGETS, True)
+
+
+@pytest.mark.slow
+def test_the_quick_fuzz_run_finds_no_crash_and_no_hang(quick_run: tuple[subprocess.CompletedProcess[str], dict[str, Any]]) -> None:
+    done, figures = quick_run
+    found = {name: {"crashes": t["crashes"], "hangs": t["hangs"]} for name, t in figures["targets"].items() if t["crashes"] or t["hangs"]}
+    assert found == {}, done.stdout[-6000:]
+    assert done.returncode == 0
