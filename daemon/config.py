@@ -1,7 +1,9 @@
 """The configuration file: one pydantic model tree, loaded from TOML, every bad field named.
 
 This is the edge where text from a file becomes typed values; the rest of bogiemon receives plain
-dataclasses built from it (BogieGeometry, ProcessingSettings, ...). Units are in field names.
+dataclasses built from it (BogieGeometry, ProcessingSettings, ...). Units are in field names. The
+sections are in daemon/config_sections.py; here they are put together, checked as a whole (what
+`run` builds is built at validation), and read from files with their includes.
 """
 
 from __future__ import annotations
@@ -15,376 +17,72 @@ import tomllib
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError, model_validator
 
-from bogiemon.daemon.decision import INDICATOR_FIELDS, DecisionSettings, FusedSettings, Threshold
+from bogiemon.daemon.config_sections import (  # the sections, importable from here as before
+    SOURCE_KINDS,
+    CanAlarmsConfig,
+    CanSourceConfig,
+    ConfigError,
+    DecisionConfig,
+    GeometryConfig,
+    HealthConfig,
+    MqttConfig,
+    PipelineConfig,
+    ProcessingConfig,
+    ReplaySourceConfig,
+    Section,
+    SensorsConfig,
+    SerialSourceConfig,
+    SimulatedSourceConfig,
+    SourceConfig,
+    StateConfig,
+    WagonConfig,
+    core_settings,
+)
+from bogiemon.daemon.decision import DecisionSettings, FusedSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import Baseline, Levels, LoadModel, shipped_models
-from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
-from bogiemon.detection.features import COUPLING_NAMES
+from bogiemon.detection import BogieGeometry, ProcessingSettings
 
 if TYPE_CHECKING:
     from bogiemon.daemon.monitor import MonitorSettings
+
+# The whole tree is read from here: the sections live in daemon/config_sections.py.
+__all__ = [
+    "BogiemonConfig",
+    "CanAlarmsConfig",
+    "CanSourceConfig",
+    "ConfigError",
+    "DecisionConfig",
+    "GeometryConfig",
+    "HealthConfig",
+    "MqttConfig",
+    "PipelineConfig",
+    "ProcessingConfig",
+    "ReplaySourceConfig",
+    "SensorsConfig",
+    "SerialSourceConfig",
+    "SimulatedSourceConfig",
+    "SourceConfig",
+    "StateConfig",
+    "WagonConfig",
+    "default_config_text",
+    "load_config",
+    "parse_config",
+    "validate_config",
+]
 
 DEFAULT_CONFIG_NAME = "bogiemon.toml"
 # A config is a page of hand-written TOML (the shipped one is 15 KiB): a file larger than this is
 # not one, and reading it whole (a log named by mistake, /dev/zero) must not exhaust memory.
 MAX_CONFIG_BYTES = 1 << 20
-MAX_FS_HZ = 10_000.0  # no accelerometer feed of a bogie runs faster
 
 
-class ConfigError(ValueError):
-    """A config file that cannot be used; the message names the file and each bad field."""
-
-
-class _Section(BaseModel):
-    # No field takes inf or nan: every number of the config is a duration, a rate, a level or a
-    # count, and a non-finite one ends in OverflowError or NaN far from the file that caused it.
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class GeometryConfig(_Section):
-    wheelbase_m: float = Field(1.80, gt=0.5, lt=5.0)
-    sensor_spacing_m: float = Field(2.0, gt=0.5, lt=4.0)
-
-
-class SensorsConfig(_Section):
-    a1: Corner = Corner.LEADING_LEFT
-    a2: Corner = Corner.LEADING_RIGHT
-    a3: Corner = Corner.TRAILING_LEFT
-
-    @model_validator(mode="after")
-    def _distinct(self) -> SensorsConfig:
-        corners = [self.a1, self.a2, self.a3]
-        if len(set(corners)) != 3:
-            raise ValueError(f"the three sensors must sit at three different corners, got {[c.value for c in corners]}")
-        return self
-
-
-class ProcessingConfig(_Section):
-    fs_hz: float = Field(500.0, gt=0, le=MAX_FS_HZ)
-    window_s: float = Field(120.0, gt=0, le=3600)
-    hop_s: float = Field(10.0, gt=0)
-    max_lag_s: float = Field(10.0, ge=0)
-    highpass_hz: float = Field(0.5, gt=0)
-    highpass_order: int = Field(2, ge=1, le=8)
-    lowpass_hz: float = Field(10.0, gt=0)
-    lowpass_order: int = Field(4, ge=1, le=12)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> ProcessingConfig:
-        core_settings(self, self.fs_hz)  # ValueError: pydantic names the section
-        return self
-
-
-def core_settings(p: ProcessingConfig, fs_hz: float) -> ProcessingSettings:
-    """The detection core's settings for [processing] at fs_hz (the configured rate, or a
-    recording's). ValueError where the core cannot run them: its own check (detection's
-    ProcessingSettings, whose messages name these keys), the one rule of what it can run; and the
-    config's own, the high-pass below the low-pass."""
-    if p.highpass_hz >= p.lowpass_hz:
-        raise ValueError(f"highpass_hz ({p.highpass_hz}) must be below lowpass_hz ({p.lowpass_hz})")
-    return ProcessingSettings(
-        fs_hz=fs_hz,
-        window_s=p.window_s,
-        hop_s=p.hop_s,
-        max_lag_s=p.max_lag_s,
-        highpass_hz=p.highpass_hz,
-        highpass_order=p.highpass_order,
-        lowpass_hz=p.lowpass_hz,
-        lowpass_order=p.lowpass_order,
-    )
-
-
-LoadState = Literal["full", "tare"]
-IndicatorName = Literal["i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm"]
-assert set(IndicatorName.__args__) == set(INDICATOR_FIELDS)  # type: ignore[attr-defined]
-
-
-class ThresholdConfig(_Section):
-    center: float = 0.0
-    warning: float = Field(gt=0)
-    alarm: float = Field(gt=0)
-
-    @model_validator(mode="after")
-    def _ordered(self) -> ThresholdConfig:
-        if self.warning > self.alarm:
-            raise ValueError(f"warning ({self.warning}) must not exceed alarm ({self.alarm})")
-        return self
-
-
-# Thresholds when the config names none (the shipped file states the same values): derived for
-# 120 s windows by the detection study (docs/study/defaults.md) with calibrate's rule from its
-# healthy runs at 40 to 120 km/h on ERRI low and high level track; recalibrate for other windows.
-DEFAULT_THRESHOLDS: dict[str, dict[str, ThresholdConfig]] = {
-    "full": {"i4_norm": ThresholdConfig(center=-9.44e-05, warning=0.059, alarm=0.114)},
-    "tare": {
-        "i4_norm": ThresholdConfig(center=-0.000235, warning=0.0292, alarm=0.044),
-        "i3_norm": ThresholdConfig(center=0.00121, warning=0.0408, alarm=0.0657),
-    },
-}
-
-
-class FusedBaselineConfig(_Section):
-    """A wagon's own healthy baseline of the fused score for one load, written by `bogiemon calibrate`."""
-
-    features: list[str] = Field(default_factory=lambda: list(COUPLING_NAMES))
-    center: list[float]
-    warning: float = Field(gt=0)
-    alarm: float = Field(gt=0)
-    trend_warning: float = Field(gt=0)
-    trend_alarm: float = Field(gt=0)
-    windows: int = Field(0, ge=0, le=2**31)  # the calibration windows it was learned from (for people)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> FusedBaselineConfig:
-        if tuple(self.features) != COUPLING_NAMES:
-            raise ValueError(f"features {self.features} are not this bogiemon's {list(COUPLING_NAMES)}: calibrate again")
-        if len(self.center) != len(COUPLING_NAMES):
-            raise ValueError(f"center needs {len(COUPLING_NAMES)} values, got {len(self.center)}")
-        if self.warning > self.alarm or self.trend_warning > self.trend_alarm:
-            raise ValueError(
-                f"warning levels ({self.warning}, trend {self.trend_warning}) must not exceed the alarm levels ({self.alarm}, trend {self.trend_alarm})"
-            )
-        return self
-
-
-class DecisionConfig(_Section):
-    method: Literal["fused", "thresholds"] = "fused"
-    load: Literal["auto", "full", "tare"] = "auto"
-    confirm_k: int = Field(3, ge=1)
-    confirm_n: int = Field(5, ge=1, le=100)
-    clear_after_windows: int = Field(6, ge=1, le=100_000)
-    thresholds: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = Field(default_factory=lambda: DEFAULT_THRESHOLDS)
-    # The wagon's calibrated baselines (none shipped: without one a load is judged against the
-    # fleet's population baseline, config/fused_model.toml).
-    fused: dict[LoadState, FusedBaselineConfig] = Field(default_factory=dict)
-
-    @field_validator("thresholds", mode="before")
-    @classmethod
-    def _per_load_over_defaults(cls, value: Any) -> Any:
-        """A load state named in the file replaces that state's default set; others keep theirs."""
-        if isinstance(value, dict):
-            return {**DEFAULT_THRESHOLDS, **value}
-        return value
-
-    @model_validator(mode="after")
-    def _consistent(self) -> DecisionConfig:
-        if self.confirm_k > self.confirm_n:
-            raise ValueError(f"confirm_k ({self.confirm_k}) must not exceed confirm_n ({self.confirm_n})")
-        loads = ("full", "tare") if self.load == "auto" else (self.load,)
-        if self.method == "thresholds":
-            for load in loads:
-                if not self.thresholds.get(load):
-                    raise ValueError(f"no thresholds for the load state '{load}': add [decision.thresholds.{load}.<indicator>]")
-        return self
-
-
-class HealthConfig(_Section):
-    standstill_rms_mps2: float = Field(0.05, ge=0)
-    min_excitation_rms_mps2: float = Field(0.3, ge=0)
-    flat_rms_mps2: float = Field(0.02, ge=0)
-    stuck_repeat_fraction: float = Field(0.2, gt=0, le=1)
-    stuck_run_s: float = Field(1.0, gt=0)
-    clip_level_mps2: float = Field(155.0, gt=0)
-    clipped_fraction: float = Field(1e-4, gt=0, le=1)
-    noise_ratio: float = Field(2.0, gt=1)
-    noise_low_band_ratio: float = Field(3.2, gt=1)
-    max_rms_mps2: float = Field(50.0, gt=0)
-    max_gaps_per_hour: int = Field(6, ge=0, le=1_000_000)
-    gravity_mps2: float = Field(9.81, gt=0)
-    structure_checks: bool = True
-    layout_low_coherence: float = Field(-0.2, ge=-1, le=0)
-    layout_diagonal_coherence: float = Field(-0.3, ge=-1, le=0)
-    clear_after_windows: int = Field(3, ge=1, le=100_000)
-
-
-class StateConfig(_Section):
-    directory: Path = Path("/var/lib/bogiemon")
-
-
-class PipelineConfig(_Section):
-    # The ring is allocated whole at start: 600 s at the highest rate is 140 MiB.
-    ring_capacity_s: float = Field(60.0, gt=0, le=600)
-
-
-class _SourceSection(_Section):
-    """Settings every source kind has."""
-
-    max_block_s: float = Field(1.0, gt=0, le=10.0)
-
-
-class _LiveSourceSection(_SourceSection):
-    # Waits are bounded: a thread's wait() takes at most about 49 days, and a retry storm of
-    # microsecond backoffs helps no one.
-    reconnect_backoff_min_s: float = Field(0.5, ge=0.01, le=3600)
-    reconnect_backoff_max_s: float = Field(30.0, ge=0.01, le=3600)
-
-    @model_validator(mode="after")
-    def _backoff_order(self) -> _LiveSourceSection:
-        if self.reconnect_backoff_min_s > self.reconnect_backoff_max_s:
-            raise ValueError(
-                f"reconnect_backoff_min_s ({self.reconnect_backoff_min_s}) must not exceed "
-                f"reconnect_backoff_max_s ({self.reconnect_backoff_max_s})"
-            )
-        return self
-
-
-class CanSourceConfig(_LiveSourceSection):
-    kind: Literal["can"] = "can"
-    interface: Literal["socketcan", "virtual"] = "socketcan"
-    channel: str = Field("can0", min_length=1)
-    layout: Literal["hub", "per-node"] = "hub"
-    dbc_path: str = ""  # empty: the shipped config/bogiemon.dbc
-    receive_buffer_bytes: int = Field(1_048_576, ge=4096, le=2**31 - 1)  # SO_RCVBUF is a C int
-
-
-class SerialSourceConfig(_LiveSourceSection):
-    kind: Literal["serial"]
-    port: str = Field("/dev/ttyUSB0", min_length=1)
-    baudrate: int = Field(115200, gt=0, le=12_000_000)
-
-
-class ReplaySourceConfig(_SourceSection):
-    kind: Literal["replay"]
-    path: str = Field(min_length=1)
-    realtime: bool = True
-    layout: Literal["hub", "per-node"] = "hub"
-    dbc_path: str = ""
-
-
-class SimulatedSourceConfig(_SourceSection):
-    """The bundled simulator on an in-process virtual CAN bus: the demo and the end-to-end tests."""
-
-    kind: Literal["simulated"]
-    load: Literal["full", "tare"] = "full"
-    speed_kmh: float = Field(80.0, gt=0, le=200)
-    track: str = "erri-low"
-    # The whole run is simulated at open and held in memory (an hour at 500 Hz: 40 MiB).
-    duration_s: float = Field(300.0, gt=0, le=3600)
-    seed: int = Field(0, ge=0, le=2**63 - 1)
-    faults: list[str] = Field(default_factory=list)
-    fault_at_s: float = Field(0.0, ge=0)
-    rate: float = Field(8.0, ge=0.01, le=10_000)
-    channel: str = Field("bogiemon-sim", min_length=1)
-    layout: Literal["hub", "per-node"] = "hub"
-    dbc_path: str = ""
-
-    @model_validator(mode="after")
-    def _a_scenario(self) -> SimulatedSourceConfig:
-        # The simulator's own names and fault syntax (its two small modules, not the simulator).
-        from bogiemon.simulator.errors import SimulationError
-        from bogiemon.simulator.suspension import parse_fault
-        from bogiemon.simulator.track import TRACKS
-
-        if self.track not in TRACKS:
-            raise ValueError(f"unknown track {self.track!r}: use one of {', '.join(TRACKS)}")
-        for spec in self.faults:
-            try:
-                parse_fault(spec)
-            except SimulationError as exc:
-                raise ValueError(str(exc)) from None
-        # As the simulator's Scenario checks them at open.
-        if self.fault_at_s >= self.duration_s:
-            raise ValueError(f"fault_at_s ({self.fault_at_s:g}) must lie before the end of the run, duration_s = {self.duration_s:g}")
-        if self.fault_at_s > 0 and not self.faults:
-            raise ValueError("fault_at_s needs a fault in faults")
-        return self
-
-
-def _source_kind(value: Any) -> str | None:
-    """The [source] model's tag: its `kind`, "can" when a file leaves it out."""
-    if isinstance(value, dict):
-        return value.get("kind", "can")
-    return getattr(value, "kind", None)
-
-
-# [source] is one of four models, chosen by its `kind` field.
-SourceConfig = Annotated[
-    Annotated[CanSourceConfig, Tag("can")]
-    | Annotated[SerialSourceConfig, Tag("serial")]
-    | Annotated[ReplaySourceConfig, Tag("replay")]
-    | Annotated[SimulatedSourceConfig, Tag("simulated")],
-    Discriminator(
-        _source_kind,
-        custom_error_type="source_kind",
-        custom_error_message="kind must be 'can', 'serial', 'replay' or 'simulated'",
-    ),
-]
-_SOURCE_KINDS: dict[str, type[BaseModel]] = {
-    "can": CanSourceConfig,
-    "serial": SerialSourceConfig,
-    "replay": ReplaySourceConfig,
-    "simulated": SimulatedSourceConfig,
-}
-
-
-class WagonConfig(_Section):
-    # A topic level in MQTT: no separators, wildcards or spaces.
-    id: str = Field("", pattern=r"^[A-Za-z0-9._-]*$", max_length=64)
-
-
-class MqttConfig(_Section):
-    """Alarm delivery to the back office over MQTT (docs/mqtt.md): the outbox publisher."""
-
-    enabled: bool = False
-    host: str = Field("localhost", min_length=1)
-    port: int = Field(8883, ge=1, le=65535)
-    topic_prefix: str = Field("bogiemon", pattern=r"^[A-Za-z0-9._-]+(/[A-Za-z0-9._-]+)*$")
-    client_id: str = Field("", pattern=r"^[A-Za-z0-9._-]*$", max_length=64)
-    tls: bool = True
-    tls_ca_file: str = ""
-    tls_cert_file: str = ""
-    tls_key_file: str = ""
-    username_file: str = ""
-    password_file: str = ""
-    # A password over plain MQTT crosses the network readable by anyone on the path: only when
-    # the config says so (a bench).
-    allow_plaintext: bool = False
-    keepalive_s: int = Field(30, ge=5, le=3600)
-    connect_timeout_s: float = Field(10.0, gt=0, le=120)
-    status_period_s: float = Field(60.0, ge=0, le=86400)
-    max_rate_msgs_per_s: float = Field(10.0, ge=0.01, le=10_000)
-    max_inflight: int = Field(10, ge=1, le=1000)
-    outbox_max_messages: int = Field(10000, ge=10, le=10_000_000)
-    reconnect_backoff_min_s: float = Field(1.0, ge=0.01, le=3600)
-    reconnect_backoff_max_s: float = Field(60.0, ge=0.01, le=3600)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> MqttConfig:
-        if bool(self.tls_cert_file) != bool(self.tls_key_file):
-            raise ValueError("tls_cert_file and tls_key_file go together: set both for a client certificate, or neither")
-        if self.tls_cert_file and not self.tls:
-            raise ValueError("a client certificate (tls_cert_file) needs tls = true")
-        if self.password_file and not self.username_file:
-            raise ValueError("password_file needs username_file")
-        if self.password_file and not self.tls and not self.allow_plaintext:
-            raise ValueError(
-                "password_file with tls = false would send the password in clear: set tls = true "
-                "(and the broker's TLS port), or allow_plaintext = true on a bench"
-            )
-        if self.reconnect_backoff_min_s > self.reconnect_backoff_max_s:
-            raise ValueError(
-                f"reconnect_backoff_min_s ({self.reconnect_backoff_min_s}) must not exceed "
-                f"reconnect_backoff_max_s ({self.reconnect_backoff_max_s})"
-            )
-        return self
-
-
-class CanAlarmsConfig(_Section):
-    """CONFIRMED and CLEARED alarms and a heartbeat as DBC frames on a CAN bus (docs/mqtt.md)."""
-
-    enabled: bool = False
-    interface: Literal["socketcan", "virtual"] = "socketcan"
-    channel: str = Field("can0", min_length=1)
-    dbc_path: str = ""
-    heartbeat_period_s: float = Field(1.0, ge=0, le=3600)
-
-
-class BogiemonConfig(_Section):
+class BogiemonConfig(Section):
     """The whole configuration."""
 
     include: list[str] = Field(default_factory=list)
@@ -717,8 +415,8 @@ def _describe(err: Any) -> str:
     """One line per pydantic error: the dotted path, what is wrong, and a suggestion for typos."""
     loc = [str(part) for part in err["loc"]]
     source_model = None
-    if len(loc) > 1 and loc[0] == "source" and loc[1] in _SOURCE_KINDS:  # drop the [source] union's tag
-        source_model = _SOURCE_KINDS[loc.pop(1)]
+    if len(loc) > 1 and loc[0] == "source" and loc[1] in SOURCE_KINDS:  # drop the [source] union's tag
+        source_model = SOURCE_KINDS[loc.pop(1)]
     where = ".".join(loc) or "(top level)"
     if err["type"] == "extra_forbidden":
         model: type[BaseModel] = BogiemonConfig

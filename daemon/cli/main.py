@@ -19,7 +19,7 @@ COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulat
 USER_ERRORS: frozenset[str] = frozenset(
     {
         "bogiemon.daemon.calibrate.CalibrationError",
-        "bogiemon.daemon.config.ConfigError",
+        "bogiemon.daemon.config_sections.ConfigError",
         "bogiemon.daemon.delivery.connection.CredentialsError",
         "bogiemon.daemon.delivery.listener.ListenError",
         "bogiemon.daemon.models.ModelError",
