@@ -52,7 +52,7 @@ from bogiemon.daemon.delivery.schema import (
 )
 from bogiemon.daemon.delivery.transport import MqttTransport, Reason, TransportEvents, TransportFactory, Will
 from bogiemon.daemon.logs import get_logger
-from bogiemon.daemon.store import EventStore, OutboxCounts, PendingEvent, PendingStatus
+from bogiemon.daemon.store import EventStore, OutboxCounts, PendingEvent, PendingStatus, StoreWriteError
 from bogiemon.drivers.reconnect import Backoff
 
 StatusSource = Callable[[OutboxCounts, float], StatusMessage]  # (outbox counts, Unix seconds) -> status
@@ -60,6 +60,9 @@ StatusSource = Callable[[OutboxCounts, float], StatusMessage]  # (outbox counts,
 IO_WAIT_S = 0.05  # the network loop's select timeout: the latency of a new event at worst
 TRIM_PERIOD_S = 1.0  # how often the outbox bound is enforced
 FETCH_N = 100  # rows read from the store at a time
+# A full disk or a read-only state directory: the publisher retries its writes this often (what was
+# acknowledged but not marked stays pending and goes again: the listener drops the copy by event_id).
+STORE_RETRY_S = 10.0
 MAX_NOTED_UNSENDABLE = 10_000  # unsendable records remembered, so that each is logged once
 STOP_FLUSH_S = 1.0  # at stop, how long the "offline" state and the last PUBACKs may take
 
@@ -99,6 +102,7 @@ class PublisherCounters:
     dropped_events: int = 0
     unsendable_events: int = 0  # pending events that do not fit the schema: not sent, left pending
     unsendable_status: int = 0  # status messages not queued or not sent: they did not fit the schema
+    store_failures: int = 0  # writes to the event store it refused (full disk, read-only), each retried
 
 
 class TokenBucket:
@@ -203,7 +207,17 @@ class OutboxPublisher:
         store: EventStore | None = None
         try:
             store = EventStore(self.state_dir)  # its own connection: SQLite connections are per thread
-            self._loop(store)
+            while True:
+                try:
+                    self._loop(store)
+                    return
+                except StoreWriteError as exc:
+                    # The storage refuses a write (the monitor holds its events the same way): nothing
+                    # is lost, the thread waits and goes on where it was once the disk takes writes.
+                    self.counters.store_failures += 1
+                    self._log.critical("mqtt delivery cannot write to the event store, retrying", error=str(exc), retry_s=STORE_RETRY_S)
+                    if self._stop.wait(STORE_RETRY_S):
+                        return
         except BaseException as exc:  # a bug or a broken disk: log it; the monitor goes on, the outbox keeps everything
             self.error = exc
             self._log.error("publisher failed", error=repr(exc))

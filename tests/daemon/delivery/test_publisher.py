@@ -12,13 +12,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 import structlog.testing
 
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.memory_transport import MemoryBroker
+from bogiemon.daemon.delivery import publisher as publisher_module
 from bogiemon.daemon.delivery.publisher import TokenBucket
 from bogiemon.daemon.delivery.schema import EventMessage, Topics
-from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.store import EventStore, StoreWriteError
 from tests.daemon.delivery.support import (
     DEADLINE_S,
     PREFIX,
@@ -185,3 +187,32 @@ def test_the_token_bucket_allows_the_rate_and_a_burst_on_its_clock() -> None:
     assert bucket.take(0.0625) is False and bucket.take(0.125) is True  # one token per 1/8 s
     sent = sum(bucket.take(1.0 + k / 64) for k in range(641))  # 10 s of asking 64 times a second
     assert sent == 2 + 80  # the refilled burst (capped), then 8 per second
+
+
+def test_a_store_that_refuses_the_deliveries_is_retried_at_crit_and_nothing_is_lost(
+    tmp_path: Path, memory_broker: MemoryBroker, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A full disk or a read-only state directory refuses the publisher's own writes (the mark of a
+    # PUBACK): the thread must not end, and what went out stays pending until it is marked.
+    store = EventStore(tmp_path / "state")
+    refusals = {"left": 2}
+    mark = EventStore.mark_delivered
+
+    def refusing(self: EventStore, *args: object) -> None:
+        if refusals["left"] > 0:
+            refusals["left"] -= 1
+            raise StoreWriteError(f"{self.path}: cannot commit to the event store: database or disk is full")
+        mark(self, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(EventStore, "mark_delivered", refusing)
+    monkeypatch.setattr(publisher_module, "STORE_RETRY_S", 0.05)
+    committed = make_events(3)
+    with structlog.testing.capture_logs() as logs, listening(LINK, transport=memory_broker.transport) as listener:
+        with publishing(tmp_path / "state", settings(LINK), transport=memory_broker.transport) as publisher:
+            commit(store, committed, publisher)
+            assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+            assert publisher.is_alive() and publisher.error is None
+        assert [m.to_event() for m in listener.events] == committed  # copies sent again are dropped by event_id
+    assert publisher.counters.store_failures == 2
+    crit = [e for e in logs if e["event"].startswith("mqtt delivery cannot write to the event store")]
+    assert [e["log_level"] for e in crit] == ["critical", "critical"]
