@@ -84,9 +84,8 @@ def publishing(
 
 
 @contextmanager
-def listening(connection: ConnectionSettings, client_id: str = "back-office", transport: TransportFactory = paho_transport) -> Iterator[Listener]:
-    """A back-office listener in a thread, subscribed when this yields; what it raised fails the test."""
-    listener = Listener(connection, prefix=PREFIX, client_id=client_id, backoff_min_s=0.1, backoff_max_s=0.5, transport_factory=transport)
+def running(listener: Listener) -> Iterator[Listener]:
+    """The listener in a thread, subscribed when this yields; what it raised fails the test."""
     stop = threading.Event()
     errors: list[BaseException] = []
 
@@ -103,8 +102,16 @@ def listening(connection: ConnectionSettings, client_id: str = "back-office", tr
         yield listener
     finally:
         stop.set()
-        thread.join(5)
+        thread.join(DEADLINE_S)
     assert not errors, errors
+
+
+@contextmanager
+def listening(connection: ConnectionSettings, client_id: str = "back-office", transport: TransportFactory = paho_transport) -> Iterator[Listener]:
+    """A back-office listener in a thread, subscribed when this yields; what it raised fails the test."""
+    listener = Listener(connection, prefix=PREFIX, client_id=client_id, backoff_min_s=0.1, backoff_max_s=0.5, transport_factory=transport)
+    with running(listener):
+        yield listener
 
 
 def assert_all_in_order(listener: Listener, committed: list[Event], until: Callable[[Callable[[], bool]], bool] = wait_until) -> None:

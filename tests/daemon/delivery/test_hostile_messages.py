@@ -12,8 +12,6 @@ from __future__ import annotations
 import json
 import math
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +43,7 @@ from bogiemon.daemon.delivery.schema import (
 from bogiemon.daemon.delivery.transport import TransportEvents
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.daemon.store import EventStore, OutboxCounts
-from tests.daemon.delivery.support import DEADLINE_S, PREFIX, WAGON, commit, make_events, settings
+from tests.daemon.delivery.support import DEADLINE_S, PREFIX, WAGON, commit, make_events, running, settings
 
 LINK = ConnectionSettings("broker.example", 8883)
 TOPICS = Topics(PREFIX, WAGON)
@@ -261,28 +259,6 @@ def test_any_mutated_message_is_kept_or_counted_and_what_is_kept_prints_and_read
 
 
 # A poison message on a broker: acknowledged once, never sent again.
-
-
-@contextmanager
-def running(listener: Listener) -> Iterator[Listener]:
-    stop = threading.Event()
-    errors: list[BaseException] = []
-
-    def run() -> None:
-        try:
-            listener.run(stop)
-        except BaseException as exc:  # surfaced below
-            errors.append(exc)
-
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    assert listener.subscribed.wait(DEADLINE_S), errors
-    try:
-        yield listener
-    finally:
-        stop.set()
-        thread.join(DEADLINE_S)
-    assert not errors, errors
 
 
 def wagon(broker: MemoryBroker) -> MemoryTransport:
