@@ -255,8 +255,14 @@ def test_bogiemon_play_into_the_can_source_reproduces_the_recording(tmp_path: Pa
     assert got.shape == (1000, 3)
     assert np.abs(got - accel).max() <= LSB_MPS2 / 2 + 1e-12
     counters = source.counters
-    assert counters.gaps == 0 and counters.bad_frames == 0
-    assert counters.extra["dropped_by_kernel"] == 0 and counters.extra["lost_samples"] == 0
+    assert counters.bad_frames == 0 and counters.extra["lost_samples"] == 0 and counters.extra["duplicates"] == 0
+    assert counters.extra["dropped_by_kernel"] == 0 and counters.extra["out_of_order"] == 0
+    # A player process (vcan0) never pauses long; the virtual bus's player is a thread of this
+    # process, and on a loaded machine the interpreter lock can hold it off longer than the
+    # sequence counter's silence bound (half a wrap, 0.25 s): the source then rightly starts a new
+    # segment. Every sample is still there and in order (above), so only there are gaps allowed.
+    if kind == "socketcan":
+        assert counters.gaps == 0
     granted = port.effective_receive_buffer_bytes  # a socket's buffer: SocketCAN only
     assert (granted is not None and granted > 0) if kind == "socketcan" else granted is None
 
