@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test install bench bench-core bench-drivers bench-simulator bench-daemon bench-study bench-profile soak fuzz study evaluate demo-calibration clean
+.PHONY: demo fleet-demo test install bench bench-core bench-drivers bench-simulator bench-daemon bench-study bench-profile soak fuzz study evaluate demo-calibration clean
 
 # The venv is (re)built when missing or when pyproject.toml changes.
 $(STAMP): pyproject.toml
@@ -17,6 +17,19 @@ install: $(STAMP)
 # The main job on the bundled simulator: a healthy stretch, then a broken spring (about a minute).
 demo: $(STAMP)
 	$(PY) -m bogiemon.daemon.cli.main demo
+
+# The back office on a simulated fleet (docs/fleet.md): 8 wagons x 3 days, a broken spring on two
+# of them and a noisy sensor on a third; simulate, analyze on a local Dask cluster, commission each
+# wagon from its first day, judge, and write the one-page report (a few minutes).
+FLEET_DEMO := build/fleet-demo
+fleet-demo: $(STAMP)
+	rm -rf $(FLEET_DEMO) && mkdir -p $(FLEET_DEMO)
+	$(VENV)/bin/bogiemon fleet simulate $(FLEET_DEMO)/fleet --wagons 8 --days 3 --commission-runs 6 --runs-per-day 2
+	$(VENV)/bin/bogiemon fleet analyze $(FLEET_DEMO)/fleet -o $(FLEET_DEMO)/windows
+	$(VENV)/bin/bogiemon fleet calibrate --uncommissioned --fleet $(FLEET_DEMO)/fleet --windows $(FLEET_DEMO)/windows
+	$(VENV)/bin/bogiemon fleet judge $(FLEET_DEMO)/windows -o $(FLEET_DEMO)/judged
+	$(VENV)/bin/bogiemon fleet report $(FLEET_DEMO)/judged -o $(FLEET_DEMO)/report.html
+	@echo "make fleet-demo: the fleet report is $(abspath $(FLEET_DEMO))/report.html"
 
 # First the house's import contract (tests/house.py: the layers in pyproject.toml), then pytest.
 # pytest exits 5 when it collects no tests: that is a failure here, never a pass.
@@ -53,6 +66,11 @@ bench-daemon: $(STAMP)
 bench-study: $(STAMP)
 	$(PY) bench/bench_study.py
 
+# The back office: `fleet analyze` of a simulated fleet on 1 and 2 Dask workers, against `analyze`.
+.PHONY: bench-fleet
+bench-fleet: $(STAMP)
+	$(PY) bench/bench_fleet.py
+
 # The daemon's hot path on the CAN feed at 500 Hz under py-spy, before and after the CAN reader
 # coalesces its wake-ups (about 20 minutes).
 bench-profile: $(BENCH_STAMP)
@@ -70,22 +88,23 @@ soak: $(STAMP)
 kill9: $(STAMP)
 	$(PY) bench/kill9.py
 
-# System packages the tests use: mosquitto (the MQTT tests' broker) and openssl (their test
-# certificates), installed with apt-get only when missing and only as root; without them those
-# tests are skipped and say why.
+# System packages the tests use: mosquitto (the MQTT tests' broker), openssl (their test
+# certificates) and chromium (the headless browser that opens the fleet report's page), installed
+# with apt-get only when missing and only as root; without them those tests are skipped and say why.
 .PHONY: system-deps bench-mqtt
 system-deps:
 	@missing=""; \
 	command -v mosquitto >/dev/null 2>&1 || test -x /usr/sbin/mosquitto || missing="$$missing mosquitto"; \
 	command -v openssl >/dev/null 2>&1 || missing="$$missing openssl"; \
+	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \
 	if [ -z "$$missing" ]; then exit 0; fi; \
 	if [ "$$(id -u)" != 0 ] || ! command -v apt-get >/dev/null 2>&1; then \
-		echo "make system-deps: missing$$missing (installing needs root and apt-get): the MQTT tests will be skipped" >&2; exit 0; fi; \
+		echo "make system-deps: missing$$missing (installing needs root and apt-get): the tests that use them will be skipped" >&2; exit 0; fi; \
 	echo "make system-deps: apt-get install$$missing"; \
 	export DEBIAN_FRONTEND=noninteractive; \
 	apt-get install -y -qq --no-install-recommends $$missing >/dev/null 2>&1 \
 	|| { apt-get update -qq && apt-get install -y -qq --no-install-recommends $$missing; } \
-	|| echo "make system-deps: apt-get failed: the MQTT tests will be skipped" >&2
+	|| echo "make system-deps: apt-get failed: the tests that use$$missing will be skipped" >&2
 
 # Alarm delivery against a local mosquitto: the backlog's drain rate, end to end.
 bench-mqtt: $(STAMP) system-deps

@@ -2,7 +2,8 @@
 
 Runs the detection core against its naive baseline and `analyze` (bench_core), the CAN decoder
 and the sources (bench_drivers), the simulator (bench_simulator), the whole daemon at 500 Hz
-(bench_daemon) and the full detection study once (bench_study), then prints one Markdown table
+(bench_daemon) and the full detection study once (bench_study), the back office's `fleet analyze` on 1 and 2
+Dask workers (bench_fleet), then prints one Markdown table
 and writes JSON with the figures, the machine's CPU model, the load average before and after,
 the versions of Python and the libraries, the date and the git commit.
 Takes about 40 minutes (the daemon's real-time runs and the study); --quick takes about 8.
@@ -30,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_core  # noqa: E402
 import bench_daemon  # noqa: E402
 import bench_drivers  # noqa: E402
+import bench_fleet  # noqa: E402
 import bench_simulator  # noqa: E402
 import bench_study  # noqa: E402
 from timing import Figure, table  # noqa: E402
@@ -46,6 +48,8 @@ PARTS: dict[str, tuple[Callable[..., list[Figure]], dict[str, Any], dict[str, An
                   {"runs": 3, "duration_s": 20.0, "batch_n": 4}),
     "daemon": (bench_daemon.figures, {"runs": 3, "seconds": 240.0}, {"runs": 1, "seconds": 150.0}),
     "study": (bench_study.figures, {"runs": 1}, {"runs": 1, "quick": True}),
+    "fleet": (bench_fleet.figures, {"runs": 5, "wagons": 16, "days": 2, "recordings": 2},
+              {"runs": 1, "wagons": 4, "days": 1, "recordings": 2}),
 }  # fmt: skip
 
 

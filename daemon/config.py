@@ -14,7 +14,7 @@ import json
 import os
 import stat
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,6 +32,7 @@ from bogiemon.daemon.config_sections import (  # the sections, importable from h
     MqttConfig,
     PipelineConfig,
     ProcessingConfig,
+    RecorderConfig,
     ReplaySourceConfig,
     Section,
     SensorsConfig,
@@ -50,6 +51,7 @@ from bogiemon.detection import BogieGeometry, ProcessingSettings
 
 if TYPE_CHECKING:
     from bogiemon.daemon.monitor import MonitorSettings
+    from bogiemon.daemon.recorder import RecorderSettings
 
 # The whole tree is read from here: the sections live in daemon/config_sections.py.
 __all__ = [
@@ -63,6 +65,7 @@ __all__ = [
     "MqttConfig",
     "PipelineConfig",
     "ProcessingConfig",
+    "RecorderConfig",
     "ReplaySourceConfig",
     "SensorsConfig",
     "SerialSourceConfig",
@@ -99,6 +102,7 @@ class BogiemonConfig(Section):
     wagon: WagonConfig = WagonConfig()
     mqtt: MqttConfig = MqttConfig()
     can_alarms: CanAlarmsConfig = CanAlarmsConfig()
+    recorder: RecorderConfig = RecorderConfig()
 
     @model_validator(mode="after")
     def _mqtt_needs_the_wagon(self) -> BogiemonConfig:
@@ -233,6 +237,26 @@ class BogiemonConfig(Section):
             load_model=self.load_model() if load == "auto" else None,
         )
 
+    def recorder_settings(self) -> RecorderSettings | None:
+        """What the recorder needs: its section, and the windows and confirmation whose samples a
+        snapshot holds; None when [recorder] is not enabled."""
+        from bogiemon.daemon.recorder import RecorderSettings  # the service builds it, only when enabled
+
+        r = self.recorder
+        if not r.enabled:
+            return None
+        return RecorderSettings(
+            directory=r.directory,
+            lead_in_s=r.lead_in_s,
+            periodic_every_h=r.periodic_every_h,
+            periodic_s=r.periodic_s,
+            max_total_bytes=r.max_total_bytes,
+            window_s=self.processing.window_s,
+            hop_s=self.processing.hop_s,
+            confirm_n=self.decision.confirm_n,
+            max_block_s=self.source.max_block_s,
+        )
+
     def digest(self) -> str:
         """A short, stable hash of the resolved config, recorded with everything it produced."""
         text = json.dumps(self.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
@@ -244,14 +268,18 @@ def default_config_text() -> str:
     return resources.files("bogiemon.config").joinpath(DEFAULT_CONFIG_NAME).read_text(encoding="utf-8")
 
 
-def load_config(path: str | Path | None = None, *, log_warnings: bool = True) -> BogiemonConfig:
+def load_config(
+    path: str | Path | None = None, *, log_warnings: bool = True, extra_includes: Sequence[str | Path] = ()
+) -> BogiemonConfig:
     """Load and validate a config file; None loads the shipped default. Raises ConfigError.
 
     Files named in the top-level `include` list (relative to the including file) are merged
     over it in order, table by table: how `bogiemon calibrate`'s thresholds reach the daemon.
     An include must stay inside the including file's folder, `..` and symlinks resolved, unless
-    the file sets `allow_absolute_includes = true`. With log_warnings, credential files others
-    can read are logged as warnings (check-config prints them instead).
+    the file sets `allow_absolute_includes = true`. extra_includes are merged last, as if the
+    file listed them (the back office's convention of a calibration.toml beside a wagon's
+    config: the caller chose them, so they are not held to the folder). With log_warnings,
+    credential files others can read are logged as warnings (check-config prints them instead).
     """
     if path is None:
         return parse_config(default_config_text(), source="default config")
@@ -263,8 +291,8 @@ def load_config(path: str | Path | None = None, *, log_warnings: bool = True) ->
     allow_outside = data.get("allow_absolute_includes", False)
     if not isinstance(allow_outside, bool):
         raise ConfigError(f"{path}: allow_absolute_includes: expected true or false, got {_short(allow_outside)}")
-    for name in names:
-        fragment_path = _include_path(path, name, allow_outside)
+    fragment_paths = [_include_path(path, name, allow_outside) for name in names] + [Path(p) for p in extra_includes]
+    for fragment_path in fragment_paths:
         fragment = _read_toml(fragment_path)
         for key in ("include", "allow_absolute_includes"):
             if key in fragment:

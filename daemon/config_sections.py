@@ -361,3 +361,29 @@ class CanAlarmsConfig(Section):
     channel: str = Field("can0", min_length=1)
     dbc_path: str = ""
     heartbeat_period_s: float = Field(1.0, ge=0, le=3600)
+
+
+MIB = 1 << 20
+
+
+class RecorderConfig(Section):
+    """The raw samples around each alarm, and periodic samples, as .csv.gz for the back office
+    (daemon/recorder.py, docs/recorder.md)."""
+
+    enabled: bool = False
+    directory: Path = Path("/var/lib/bogiemon/recordings")
+    # Before the windows that raised an alarm (the ring that holds it never takes more than 64 MiB).
+    lead_in_s: float = Field(60.0, ge=0, le=600)
+    periodic_every_h: float = Field(0.0, ge=0, le=8760)  # 0: none; at most one a year
+    # One periodic recording is held in memory until written: an hour at 500 Hz is 21 MiB.
+    periodic_s: float = Field(300.0, gt=0, le=3600)
+    max_total_bytes: int = Field(512 * MIB, ge=MIB, le=2**50)
+
+    @model_validator(mode="after")
+    def _periodic_fits(self) -> RecorderConfig:
+        if self.periodic_every_h > 0 and self.periodic_s > self.periodic_every_h * 3600:
+            raise ValueError(
+                f"periodic_s ({self.periodic_s:g}) must not exceed the period periodic_every_h "
+                f"({self.periodic_every_h:g} h = {self.periodic_every_h * 3600:g} s)"
+            )
+        return self

@@ -141,10 +141,12 @@ class Monitor:
         observers: Sequence[Callable[[WindowReport], None]] = (),
         hold_uncommitted: bool = False,
         max_held_events: int = MAX_HELD_EVENTS,
+        taps: Sequence[Callable[[Block], None]] = (),
     ) -> None:
         self.store = store
         self.sinks = list(sinks)
         self.observers = list(observers)
+        self.taps = list(taps)  # see every non-empty block before its windows (the recorder keeps the raw samples)
         self.counters = MonitorCounters()
         self.latest: WindowReport | None = None
         self.hold_uncommitted = hold_uncommitted  # the service: hold what the store refuses, retry per window
@@ -186,6 +188,8 @@ class Monitor:
         """Process one block; return the events it caused (already committed and reported)."""
         if block.n_samples == 0:
             return []
+        for tap in self.taps:
+            tap(block)
         self.counters.blocks += 1
         self.counters.samples += block.n_samples
         if self._core is None or self._core.settings.fs_hz != block.fs_hz:

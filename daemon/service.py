@@ -23,6 +23,7 @@ from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.monitor import Monitor, WindowReport
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
+from bogiemon.daemon.recorder import Recorder
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink, LogSink
 from bogiemon.daemon.store import EventStore, StoreError
@@ -81,6 +82,7 @@ class Service:
         self.sinks = sinks if sinks is not None else [LogSink()]
         self.observers = observers or []
         self.flags = _Flags(threading.Event(), threading.Event())
+        self.recorder: Recorder | None = None  # [recorder] enabled: it taps the monitor's blocks and windows
         self._log = get_logger(component="service")
 
     def _warn_if_not_commissioned(self, config: BogiemonConfig) -> None:
@@ -122,6 +124,7 @@ class Service:
             self.config.monitor_settings(self.load), store, [*self.sinks, self.delivery], self.observers, hold_uncommitted=True
         )
         self.delivery.start(self.config, monitor)
+        self._apply_recorder(None, monitor, self.config)
         self._log.info(
             "starting", config=str(self.config_path or "default"), config_hash=self.config.digest(),
             state=str(store.path), mode=monitor.mode, load=self.load or self.config.decision.load,
@@ -155,6 +158,8 @@ class Service:
             self.notifier.stopping()
             pipeline.stop()
             pipeline.source.close()
+            if self.recorder is not None:
+                self.recorder.close()  # writes what is queued, logs its counters
             self.delivery.close()  # says "offline"; what is undelivered stays in the outbox
             monitor.save_state()  # with the held events, a last try; a refusal is logged at crit, never raised
             store.close()
@@ -175,6 +180,35 @@ class Service:
         pipeline = Pipeline(source, monitor, ring)
         pipeline.start()
         return pipeline
+
+    def _apply_recorder(self, pipeline: Pipeline | None, monitor: Monitor, config: BogiemonConfig) -> None:
+        """Attach the recorder the config asks for, in place of the running one if its settings
+        changed (a new one starts with an empty ring); the old one finishes its writes."""
+        settings = config.recorder_settings()
+        old = self.recorder
+        if (old.settings if old is not None else None) == settings:
+            return
+        new = Recorder(settings) if settings is not None else None
+
+        def swap(m: Monitor) -> None:
+            if old is not None:
+                m.taps.remove(old.on_block)
+                m.observers.remove(old.on_window)
+            if new is not None:
+                m.taps.append(new.on_block)
+                m.observers.append(new.on_window)
+
+        if pipeline is None:  # not started yet
+            swap(monitor)
+        else:
+            pipeline.with_monitor(swap)  # between two blocks
+        self.recorder = new
+        if old is not None:
+            old.close()
+        if new is not None:
+            r = new.settings
+            self._log.info("recorder started", directory=str(r.directory), lead_in_s=r.lead_in_s,
+                           periodic_every_h=r.periodic_every_h, max_total_bytes=r.max_total_bytes)  # fmt: skip
 
     def _data_moves(self, pipeline: Pipeline) -> bool:
         interval_s = self.notifier.watchdog_interval_s
@@ -231,6 +265,10 @@ class Service:
                 raise
             reject(exc, "apply")
             return pipeline
+        try:
+            self._apply_recorder(pipeline, monitor, new)
+        except Exception as exc:  # noqa: BLE001 - recordings are a nicety: the new config runs without the change
+            self._log.error("recorder not reconfigured, the running one goes on", error=f"{type(exc).__name__}: {exc}")
         if new.state != old.state:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
         self._log.info("reloaded", config_hash=new.digest())

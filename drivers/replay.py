@@ -1,11 +1,11 @@
 """Replay sources: a CSV recording or a CAN log played back as if live, then EndOfStream.
 
-CSV recordings (drivers/recording.py) come back as they were written: the block times are the
-file's time_s. CAN logs are anything python-can reads by suffix (candump -L .log, Vector .asc
-and .blf, ...), decoded with the DBC through the same CanFrameDecoder as the live CAN source, so
-a log with lost, repeated or foreign frames, or frames with unusable time stamps, is counted and
-segmented exactly as on the bus; the block times come from the log's time stamps (absolute in
-.log and .blf, from 0 in .asc).
+CSV recordings (drivers/recording.py, plain .csv or compressed .csv.gz) come back as they were
+written: the block times are the file's time_s. CAN logs are anything python-can reads by suffix
+(candump -L .log, Vector .asc and .blf, ...), decoded with the DBC through the same
+CanFrameDecoder as the live CAN source, so a log with lost, repeated or foreign frames, or frames
+with unusable time stamps, is counted and segmented exactly as on the bus; the block times come
+from the log's time stamps (absolute in .log and .blf, from 0 in .asc).
 
 A line python-can cannot parse is counted (bad_frames and extra["unreadable_entries"]) and
 skipped: the text logs (.log, .asc) are read on from the next line. A binary log (.blf) and the
@@ -31,7 +31,7 @@ import numpy as np
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source, plausible_time
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
-from bogiemon.drivers.recording import RecordingError, read_csv_recording
+from bogiemon.drivers.recording import RecordingError, is_csv_recording_name, read_csv_recording
 from bogiemon.drivers.segments import SampleQueue
 
 # The longest silence of a CAN log a paced replay waits out (a wagon standing at a station, or a
@@ -320,8 +320,8 @@ def open_replay(
     fs_hz: float,
     max_block_s: float = 1.0,
 ) -> Source:
-    """The replay source for a file: a .csv recording, or a CAN log decoded with layout."""
-    if Path(path).suffix.lower() == ".csv":
+    """The replay source for a file: a .csv (or .csv.gz) recording, or a CAN log decoded with layout."""
+    if is_csv_recording_name(path):  # before python-can, which would read a .csv.gz as its own CSV log format
         return CsvReplaySource(path, rate=rate, max_block_s=max_block_s)
     if layout is None:
         raise RecordingError(f"{path}: a CAN log needs a DBC layout to be decoded")

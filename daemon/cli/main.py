@@ -11,9 +11,9 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, evaluate, events, listen, play, replay, run, simulate, study
+from bogiemon.daemon.cli import analyze, calibrate, check_config, demo, evaluate, events, fleet, listen, play, replay, run, simulate, study
 
-COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, play, listen)
+COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, fleet, play, listen)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback. Named, not
 # imported, so that the command line loads only the command it runs; a test resolves every name.
 USER_ERRORS: frozenset[str] = frozenset(
@@ -24,11 +24,15 @@ USER_ERRORS: frozenset[str] = frozenset(
         "bogiemon.daemon.delivery.listener.ListenError",
         "bogiemon.daemon.models.ModelError",
         "bogiemon.daemon.store.StoreError",
+        "bogiemon.fleet.layout.FleetError",
+        "bogiemon.fleet.judge.JudgeError",
+        "bogiemon.fleet.report.ReportError",
         "bogiemon.drivers.candb.DbcError",
         "bogiemon.drivers.player.PlayError",
         "bogiemon.drivers.recording.RecordingError",
         "bogiemon.simulator.errors.SimulationError",
         "bogiemon.lab.robust.evaluate.EvaluateError",
+        "bogiemon.lab.fleetsim.FleetSimError",
         "bogiemon.daemon.cli.events.TimeArgumentError",
         "bogiemon.daemon.cli.study.StudyError",
     }

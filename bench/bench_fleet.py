@@ -1,0 +1,159 @@
+"""The back office's throughput: `bogiemon fleet analyze` on 1 and 2 Dask workers, against `analyze`.
+
+A fleet of W wagons x D days x R recordings of 10 min (four simulated runs, each placed many
+times at its own day and time, gzip CSV as the recorder writes them) is analysed on a Dask
+LocalCluster of one and of two single-threaded workers (the cluster started beforehand: its
+start-up is not the analysis), every partition redone each time, the two interleaved run by run
+so both see the same machine. Figures: wagon-hours of recording per core-second and per second,
+the speed-up from 1 to 2 workers, and one recording's analysis in the fleet's task against
+`bogiemon analyze` of the same file (the baseline: the same core, without Parquet and checks).
+From the 2-worker figure: the largest fleet one machine of N cores analyses per day at one hour
+of recording per wagon, and the core-hours per 10 000 wagon-days.
+
+    .venv/bin/python bench/bench_fleet.py [--runs 3] [--wagons 16] [--days 2] [--recordings 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from timing import Figure, table  # noqa: E402
+
+COMMAND = "make bench-fleet"
+RUN_S = 600.0
+
+
+def _simulate_runs(folder: Path, n: int) -> list[Path]:
+    from bogiemon.drivers.recording import write_csv_recording
+    from bogiemon.simulator.run import simulate_batch
+    from bogiemon.simulator.scenario import Scenario, SpeedProfile
+    from bogiemon.simulator.sensors import SensorModel
+
+    tracks = ("erri-low", "erri-high", "fra-5", "fra-4")
+    scenarios = [
+        Scenario(load="full" if i % 2 == 0 else "tare", speed=SpeedProfile(((0.0, 60.0 + 10 * i), (RUN_S, 100.0 - 10 * i))),
+                 track=tracks[i % 4], duration_s=RUN_S, seed=100 + i,
+                 sensor=SensorModel(noise_mps2=0.01, quantum_mps2=16 * 9.81 / 32768))
+        for i in range(n)
+    ]  # fmt: skip
+    out = []
+    for i, result in enumerate(simulate_batch(scenarios)):
+        path = folder / f"run{i}.csv.gz"
+        write_csv_recording(path, result.time_s, result.accel_mps2)
+        out.append(path)
+    return out
+
+
+def build_fleet(root: Path, runs: list[Path], wagons: int, days: int, recordings: int) -> float:
+    """The tree; returns its seconds of recording."""
+    import datetime as dt
+
+    from bogiemon.drivers.recording import read_csv_recording, write_csv_recording
+
+    loaded = [read_csv_recording(p) for p in runs]
+    start = dt.datetime(2026, 11, 2, tzinfo=dt.timezone.utc).timestamp()
+    total_s = 0.0
+    for w in range(wagons):
+        folder = root / f"31-80-{w:04d}"
+        folder.mkdir(parents=True)
+        (folder / "bogiemon.toml").write_text('[decision]\nload = "auto"\n', encoding="utf-8")
+        for d in range(days):
+            day = folder / time.strftime("%Y-%m-%d", time.gmtime(start + d * 86400))
+            day.mkdir()
+            for r in range(recordings):
+                rec = loaded[(w + d + r) % len(loaded)]
+                t0 = start + d * 86400 + 6 * 3600 + r * 5400
+                path = day / f"{time.strftime('%H%M%S', time.gmtime(t0))}_run.csv.gz"
+                # The same samples at another time: each file is read and analysed on its own.
+                write_csv_recording(path, rec.time_s - rec.time_s[0] + t0, rec.accel_mps2)
+                total_s += rec.duration_s
+    return total_s
+
+
+def figures(runs: int = 3, wagons: int = 16, days: int = 2, recordings: int = 2) -> list[Figure]:
+    from bogiemon.daemon.analysis import analyze_recording, open_recording
+    from bogiemon.fleet.analyze import analyze_fleet, analyze_day, day_tasks, local_client
+    from bogiemon.fleet.layout import scan_fleet
+
+    with tempfile.TemporaryDirectory(prefix="bogiemon-bench-fleet-") as tmp:
+        scratch = Path(tmp)
+        (scratch / "runs").mkdir()
+        sims = _simulate_runs(scratch / "runs", 4)
+        recorded_s = build_fleet(scratch / "fleet", sims, wagons, days, recordings)
+        wagon_hours = recorded_s / 3600.0
+        fleet = scan_fleet(scratch / "fleet")
+        config = fleet.wagons[0].config
+
+        # One recording: `bogiemon analyze` (read, core) against the fleet's task of one recording.
+        one = fleet.wagons[0].days[0].files[0]
+        task = day_tasks(fleet, scratch / "one")[0]
+        task = type(task)(task.wagon_id, task.date, task.midnight_s, (one,), task.config, task.digest, task.path)
+        baseline, fleet_task = [], []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            sum(1 for _ in analyze_recording(open_recording(one.path, config), config))
+            baseline.append(RUN_S / (time.perf_counter() - t0))
+            t0 = time.perf_counter()
+            analyze_day(task)
+            fleet_task.append(RUN_S / (time.perf_counter() - t0))
+
+        per_worker: dict[int, list[float]] = {1: [], 2: []}
+        clients = {n: local_client(n) for n in (1, 2)}
+        try:
+            for n, client in clients.items():  # warm-up: imports in the workers
+                analyze_fleet(scratch / "fleet", scratch / f"warm{n}", client=client)
+            for _ in range(runs):
+                for n, client in clients.items():
+                    t0 = time.perf_counter()
+                    analyze_fleet(scratch / "fleet", scratch / f"out{n}", client=client, redo=True)
+                    per_worker[n].append(wagon_hours / (time.perf_counter() - t0))
+        finally:
+            for client in clients.values():
+                cluster = client.cluster
+                client.close()
+                cluster.close()
+
+    speedups = [b / a for a, b in zip(per_worker[1], per_worker[2], strict=True)]
+    two = statistics.median(per_worker[2])
+    cores = os.cpu_count() or 1
+    # One hour of recording per wagon and day (the issue's sizing): wagons per day a machine of
+    # `cores` cores handles, scaling from 2 workers linearly (the tasks share nothing).
+    per_core_s = two / 2
+    wagons_per_day_per_core = per_core_s * 86_400
+    core_hours_per_10k = 10_000 / per_core_s / 3600
+    f_base = Figure.of("fleet.analyze_baseline", "`bogiemon analyze` of one 10-min recording", "x real time", baseline, COMMAND)
+    f_task = Figure.of("fleet.task", "the fleet's task on the same recording (+ checks, Parquet)", "x real time", fleet_task, COMMAND).compare(f_base)
+    f1 = Figure.of("fleet.one_worker", f"fleet analyze, 1 worker ({wagons} wagons x {days} days x {recordings} x 10 min)", "wagon-h/s", per_worker[1], COMMAND)
+    f2 = Figure.of("fleet.two_workers", "fleet analyze, 2 workers", "wagon-h/s", per_worker[2], COMMAND, target=1.7 * f1.median).compare(f1)
+    f_speed = Figure.of("fleet.speedup", "speed-up from 1 to 2 workers", "x", speedups, COMMAND, target=1.7)
+    f_core = Figure.of("fleet.per_core", "throughput per core (2 workers)", "wagon-h/core-s", [v / 2 for v in per_worker[2]], COMMAND)
+    f_day = Figure.of("fleet.wagons_per_core_day", "wagons (1 h/day each) one core analyses per day", "wagons", [wagons_per_day_per_core], COMMAND,
+                      note=f"x {cores} cores here: {wagons_per_day_per_core * cores:,.0f} wagons/day".replace(",", " "))  # fmt: skip
+    f_cost = Figure.of("fleet.core_hours_10k", "core-hours per 10 000 wagon-days (1 h each)", "core-h", [core_hours_per_10k], COMMAND, higher_is_better=False)
+    return [f_base, f_task, f1, f2, f_speed, f_core, f_day, f_cost]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--wagons", type=int, default=16)
+    parser.add_argument("--days", type=int, default=2)
+    parser.add_argument("--recordings", type=int, default=2)
+    args = parser.parse_args()
+    print(table(figures(args.runs, args.wagons, args.days, args.recordings)))
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    raise SystemExit(main())

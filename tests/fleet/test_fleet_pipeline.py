@@ -1,0 +1,169 @@
+"""The back office end to end on a small simulated fleet: analyze on a real Dask LocalCluster, judge,
+calibrate; offline equals onboard, resume, and bad inputs that never stop the rest."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from bogiemon.daemon.calibrate import calibrate
+from bogiemon.daemon.config import load_config
+from bogiemon.daemon.events import Event
+from bogiemon.daemon.replay import replay
+from bogiemon.daemon.sinks import EventSink
+from bogiemon.fleet.analyze import analyze_fleet, partition_path
+from bogiemon.fleet.calibrate import calibrate_wagon
+from bogiemon.fleet.judge import judge_fleet
+from bogiemon.fleet.layout import scan_fleet
+from tests.fleet import tree
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def client():  # type: ignore[no-untyped-def]
+    from bogiemon.fleet.analyze import local_client
+
+    c = local_client(2)
+    yield c
+    cluster = c.cluster
+    c.close()
+    cluster.close()
+
+
+def _fleet(root: Path, runs: tree.Runs) -> dict[str, list[Path]]:
+    """W1 (commissioned): a healthy day, then a day where the spring breaks; W2 healthy, not commissioned."""
+    w1, w2 = tree.wagon(root, "W1", commissioned=True), tree.wagon(root, "W2", commissioned=False)
+    return {
+        "W1": [
+            tree.place(runs.healthy[0], w1, "2026-11-02", "06:00"),
+            tree.place(runs.healthy[1], w1, "2026-11-02", "07:30", suffix=".csv"),
+            tree.place(runs.healthy[0], w1, "2026-11-03", "06:00"),
+            tree.place(runs.faulty, w1, "2026-11-03", "09:00"),
+        ],
+        "W2": [tree.place(runs.healthy[1], w2, "2026-11-02", "06:00"), tree.place(runs.healthy[0], w2, "2026-11-03", "06:00")],
+    }
+
+
+class _Collect(EventSink):
+    def __init__(self) -> None:
+        self.events: list[Event] = []
+
+    def publish(self, event: Event) -> None:
+        self.events.append(event)
+
+
+def _comparable(event: Event) -> tuple[object, ...]:
+    return (event.kind, event.time_s, event.severity, json.dumps(dict(event.indicators), sort_keys=True),
+            json.dumps(dict(event.details), sort_keys=True))  # fmt: skip
+
+
+def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+    files = _fleet(tmp_path / "fleet", runs)
+    analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
+    judge_fleet(tmp_path / "windows", tmp_path / "judged")
+    offline = [json.loads(line) for line in (tmp_path / "judged" / "events.jsonl").read_text().splitlines()]
+    offline_w1 = [Event.from_dict(e) for e in offline if e["wagon_id"] == "W1"]
+
+    config = scan_fleet(tmp_path / "fleet").wagon("W1").config
+    sink = _Collect()
+    replay(files["W1"], config, sinks=[sink])
+
+    assert [e.kind.value for e in sink.events] == [e.kind.value for e in offline_w1]
+    assert "CONFIRMED" in [e.kind.value for e in offline_w1]
+    assert [_comparable(e) for e in offline_w1] == [_comparable(e) for e in sink.events]
+    assert [e["seq"] for e in offline if e["wagon_id"] == "W1"] == list(range(1, len(offline_w1) + 1))
+    wagons = {w["wagon"]: w for w in json.loads((tmp_path / "judged" / "wagons.json").read_text())["wagons"]}
+    assert wagons["W1"]["state"] == "CONFIRMED" and wagons["W1"]["diagnosis"]["corner"] == "leading-left"
+    assert wagons["W2"]["state"] == "NORMAL"
+    assert next(iter(wagons)) == "W1"  # the most urgent first
+
+
+def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+    _fleet(tmp_path / "fleet", runs)
+
+    def interrupt(done: int, total: int) -> None:
+        if done == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client, progress=interrupt)
+    written = sorted((tmp_path / "windows").glob("wagon=*/date=*/part-0.parquet"))
+    assert 1 <= len(written) < 4
+    mtimes = {p: p.stat().st_mtime_ns for p in written}
+    # A run killed while writing leaves a temporary file: cleaned, never read as a partition.
+    stale = written[0].parent / ".part-0.parquet.dead.tmp"
+    stale.write_bytes(b"half a parquet file")
+
+    resumed = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
+    fresh = analyze_fleet(tmp_path / "fleet", tmp_path / "fresh", client=client)
+
+    assert resumed.analysed == 4 - len(written) and resumed.reused == len(written)
+    assert all(p.stat().st_mtime_ns == mtimes[p] for p in written)
+    assert not stale.exists()
+    for wagon_id, date in (("W1", "2026-11-02"), ("W1", "2026-11-03"), ("W2", "2026-11-02"), ("W2", "2026-11-03")):
+        a = pq.read_table(partition_path(tmp_path / "windows", wagon_id, date))
+        b = pq.read_table(partition_path(tmp_path / "fresh", wagon_id, date))
+        assert a.num_rows == b.num_rows > 0
+        assert a.column("end_s").to_pylist() == b.column("end_s").to_pylist()
+    again = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
+    assert again.analysed == 0 and again.windows == fresh.windows
+
+
+def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+    _fleet(tmp_path / "fleet", runs)
+    analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
+    tree.place(runs.healthy[1], tmp_path / "fleet" / "W2", "2026-11-04", "06:00")
+    summary = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
+    assert (summary.analysed, summary.reused) == (1, 4)
+    assert [r.date for r in summary.results if not r.reused] == ["2026-11-04"]
+
+
+def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+    root = tmp_path / "fleet"
+    _fleet(root, runs)
+    good = tree.place(runs.healthy[0], root / "W2", "2026-11-04", "06:00")
+    truncated = good.with_name("070000_cut.csv.gz")
+    truncated.write_bytes(good.read_bytes()[: len(good.read_bytes()) // 2])
+    (root / "W2" / "2026-11-04" / "080000_garbage.csv").write_bytes(b"time_s,a1,a2,a3\n1,2,x,4\n")
+    (root / "W2" / "2026-11-05").mkdir()  # an empty day
+    (root / "W2" / "not-a-day").mkdir()
+    (root / "W3" / "2026-11-02").mkdir(parents=True)  # a wagon with no config
+    shutil.copy(good, root / "W3" / "2026-11-02" / good.name)
+    wrong_day = tree.place(runs.healthy[1], root / "W2", "2026-11-06", "06:00")
+    wrong_day.rename(root / "W2" / "2026-11-04" / "090000_elsewhere.csv.gz")
+
+    summary = analyze_fleet(root, tmp_path / "windows", client=client)
+
+    reasons = {Path(i.path).name: i.reason for i in summary.issues}
+    assert "cut short" in reasons["070000_cut.csv.gz"]
+    assert "line 2" in reasons["080000_garbage.csv"]
+    assert "empty day" in reasons["2026-11-05"]
+    assert "no date" in reasons["not-a-day"]
+    assert "no config" in reasons["W3"]
+    assert "day out of order" in reasons["090000_elsewhere.csv.gz"]
+    day = pq.read_table(partition_path(tmp_path / "windows", "W2", "2026-11-04"))
+    assert set(day.column("recording").to_pylist()) == {good.name}
+    assert summary.partitions == 5 and summary.windows > 0
+    judged = judge_fleet(tmp_path / "windows", tmp_path / "judged")
+    assert judged.wagons == 2
+    notes = {w["wagon"]: w["notes"] for w in json.loads((tmp_path / "judged" / "wagons.json").read_text())["wagons"]}
+    assert any("3 input(s) skipped" in n for n in notes["W2"])
+
+
+def test_fleet_calibrate_learns_what_bogiemon_calibrate_learns_from_the_same_days(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+    root = tmp_path / "fleet"
+    files = _fleet(root, runs)
+    analyze_fleet(root, tmp_path / "windows", client=client)
+
+    done = calibrate_wagon(root, tmp_path / "windows", "W2", days=["2026-11-02", "2026-11-03"], load="full")
+
+    expected = calibrate(files["W2"], load_config(root / "W2" / "bogiemon.toml"), "full")
+    assert done.path == root / "W2" / "calibration.toml"
+    assert done.result.loads[0].fused == expected.loads[0].fused
+    assert done.result.loads[0].indicators == expected.loads[0].indicators
+    assert scan_fleet(root).wagon("W2").commissioned == ("full",)

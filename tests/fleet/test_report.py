@@ -1,0 +1,352 @@
+"""`fleet report`: a JUDGED folder as one self-contained HTML page (fleet/report.py, fleet/svg.py)."""
+
+from __future__ import annotations
+
+import json
+import re
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bogiemon.fleet import svg
+from bogiemon.fleet.report import MAX_POINTS_PER_PANEL, SCORE_TOP_PX, ReportError, html_id, write_report
+from tests.fleet.judged_fixture import DEFAULT_FLEET, FleetShape, WagonSpec, read_wagons_json, write_judged, write_wagons_json
+
+CONFIRMED_WAGON = "31-80-4557-001"
+NORMAL_WAGON = "31-80-4557-003"
+
+
+@pytest.fixture
+def judged(tmp_path: Path) -> Path:
+    return write_judged(tmp_path / "JUDGED")
+
+
+def _page(judged: Path, tmp_path: Path) -> str:
+    out = tmp_path / "report.html"
+    write_report(judged, out)
+    return out.read_text(encoding="utf-8")
+
+
+def _section(page: str, wagon: str) -> str:
+    start = page.index(f'<section class="w" id="{html_id(wagon)}">')
+    return page[start : page.index("</section>", start)]
+
+
+def _table_order(page: str) -> list[str]:
+    body = page[page.index('<table class="fleet"') :]
+    body = body[: body.index("</table>")]
+    return re.findall(r'<td class="id"><a href="#[^"]*">([^<]*)</a>', body)
+
+
+def _events(judged: Path) -> list[dict]:
+    return [json.loads(line) for line in (judged / "events.jsonl").read_text().splitlines()]
+
+
+# --- the page ---------------------------------------------------------------------------------
+
+
+def test_table_lists_wagons_by_attention_descending_even_when_the_file_is_not_sorted(judged: Path, tmp_path: Path) -> None:
+    wagons = read_wagons_json(judged)["wagons"]
+    as_written = [w["wagon"] for w in wagons]
+    by_attention = [w["wagon"] for w in sorted(wagons, key=lambda w: -w["attention"])]
+    assert as_written != by_attention  # the fixture writes them out of order
+    assert _table_order(_page(judged, tmp_path)) == by_attention
+
+
+def test_every_wagon_has_a_section_with_a_plot_that_the_table_links_to(judged: Path, tmp_path: Path) -> None:
+    page = _page(judged, tmp_path)
+    for spec in DEFAULT_FLEET:
+        assert f'href="#{html_id(spec.wagon)}"' in page
+        assert "<svg" in _section(page, spec.wagon)
+
+
+def test_each_event_is_a_vertical_line_of_its_kind_on_its_wagons_plot(judged: Path, tmp_path: Path) -> None:
+    page = _page(judged, tmp_path)
+    for spec in DEFAULT_FLEET:
+        section = _section(page, spec.wagon)
+        expected = sorted(
+            f'class="e e-{e["kind"]}"><title>{e["kind"]} {svg.utc_label(e["time_s"])} (seq {e["seq"]})</title>'
+            for e in _events(judged)
+            if e["wagon_id"] == spec.wagon
+        )
+        marks = sorted(re.findall(r'class="e e-[A-Z_]+"><title>[^<]*</title>', section))
+        assert marks == expected
+    assert "CONFIRMED</text>" in _section(page, CONFIRMED_WAGON)  # and labelled
+
+
+def test_the_line_breaks_at_each_gap_between_recordings(judged: Path, tmp_path: Path) -> None:
+    # Two days of two recordings each: four stretches of windows, so four moves in the score path.
+    section = _section(_page(judged, tmp_path), NORMAL_WAGON)
+    score = re.search(r'<path class="s" d="([^"]*)"', section).group(1)
+    trend = re.search(r'<path class="t" d="([^"]*)"', section).group(1)
+    assert score.count("M") == 4 and trend.count("M") == 4
+
+
+def test_a_wagon_without_windows_has_an_empty_plot_that_says_so(judged: Path, tmp_path: Path) -> None:
+    section = _section(_page(judged, tmp_path), "31-80-4557-005")
+    assert "<svg" in section and "no judged windows" in section and '<path class="s"' not in section
+
+
+def test_header_counts_wagons_per_state_and_lists_the_skipped_inputs(judged: Path, tmp_path: Path) -> None:
+    page = _page(judged, tmp_path)
+    header = page[page.index("<header>") : page.index("</header>")]
+    assert '<span class="b b-CONFIRMED">CONFIRMED</span> 1' in header
+    assert '<span class="b b-NORMAL">NORMAL</span> 2' in header
+    assert "<details><summary>1 input skipped</summary>" in header
+    assert "<td>31-80-4557-003/2026-11-31</td><td>day folder name is no date</td>" in header
+
+
+def test_table_shows_diagnosis_sensor_problems_and_trend_against_its_alarm(judged: Path, tmp_path: Path) -> None:
+    page = _page(judged, tmp_path)
+    rows = {w: row for w, row in zip(_table_order(page), re.findall(r"<tr><td class=\"id\">.*?</tr>", page), strict=True)}
+    assert "leading-left (84%) · spring-softer (91%)" in rows[CONFIRMED_WAGON]
+    assert "a3: noisy" in rows["31-80-4557-002"]
+    entry = next(w for w in read_wagons_json(judged)["wagons"] if w["wagon"] == NORMAL_WAGON)
+    assert f"{entry['trend']:.3g} / {entry['trend_alarm']:.3g}" in rows[NORMAL_WAGON]
+
+
+def test_the_page_refers_to_nothing_outside_itself(judged: Path, tmp_path: Path) -> None:
+    page = _page(judged, tmp_path)
+    for outside in ("http://", "https://", "src=", "<link", "@import", "url(", "//cdn"):
+        assert outside not in page, outside
+    assert page.count("<script") == 1  # the table's sorter, inline
+
+
+def test_text_from_the_data_is_escaped_and_inert(tmp_path: Path) -> None:
+    hostile = '<script>alert("id")</script>'
+    fleet = (
+        *DEFAULT_FLEET,
+        WagonSpec(hostile, "no_data", type="<b>t</b>", notes=('<img src=x onerror="alert(1)">', "</td></tr></table><script>alert(2)</script>")),
+    )
+    judged = write_judged(tmp_path / "JUDGED", fleet, fleet='Keeper "X" <script>alert(3)</script>', skipped=(("<script>p</script>", "<i>r</i>"),))
+    page = _page(judged, tmp_path)
+    assert page.count("<script") == 1 and "<img" not in page and "<b>t</b>" not in page and "<i>r</i>" not in page
+    assert "&lt;script&gt;alert(&quot;id&quot;)&lt;/script&gt;" in page
+    assert "&lt;img src=x onerror=&quot;alert(1)&quot;&gt;" in page
+    assert re.fullmatch(r"wagon-[A-Za-z0-9._~-]+", html_id(hostile))
+
+
+def test_summary_states_the_file_it_wrote(judged: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r.html"
+    summary = write_report(judged, out, title="Fleet page")
+    assert summary.path == out and summary.bytes == out.stat().st_size and summary.wagons == len(DEFAULT_FLEET)
+    assert dict(summary.states) == {"CONFIRMED": 1, "SUSPECTED": 1, "SENSOR_FAULT": 1, "NORMAL": 2, "NO_DATA": 1}
+    assert summary.events == len(_events(judged)) and summary.skipped_inputs == 1
+    assert "<title>Fleet page</title>" in out.read_text()
+
+
+def test_a_long_series_is_decimated_to_the_panel_limit_keeping_its_peak(tmp_path: Path) -> None:
+    judged = write_judged(tmp_path / "J", (WagonSpec("w1", "normal"),), FleetShape(days=1, recordings_per_day=1, windows_per_recording=20_000))
+    path = judged / "series" / "wagon=w1" / "part-0.parquet"
+    table = pq.read_table(path)
+    score = np.array(table.column("score").to_numpy(zero_copy_only=False))
+    peak = 15_000
+    score[peak] = 1e4  # one window far above the rest
+    pq.write_table(table.set_column(table.schema.get_field_index("score"), "score", pa.array(score)), path)
+    summary = write_report(judged, tmp_path / "r.html")
+    section = _section((tmp_path / "r.html").read_text(), "w1")
+    d = re.search(r'<path class="s" d="([^"]*)"', section).group(1)
+    xs, ys = _absolute_points(d)
+    assert len(xs) <= MAX_POINTS_PER_PANEL and summary.points <= 2 * MAX_POINTS_PER_PANEL
+    assert min(ys) == pytest.approx(SCORE_TOP_PX, abs=0.05)  # the peak (1e4, the axis' top) is drawn
+
+
+# --- a bad JUDGED folder: one line naming the file and the field -------------------------------
+
+
+def test_a_missing_folder_is_a_report_error(tmp_path: Path) -> None:
+    with pytest.raises(ReportError, match=r"no such folder"):
+        write_report(tmp_path / "nope", tmp_path / "r.html")
+
+
+def _mutated(tmp_path: Path, change) -> Path:
+    judged = write_judged(tmp_path / "JUDGED")
+    doc = read_wagons_json(judged)
+    change(doc)
+    write_wagons_json(judged, doc)
+    return judged
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda d: d["wagons"][1].pop("attention"), r"wagons\.json: wagons\[1\]: missing field 'attention'"),
+        (lambda d: d.pop("inputs"), r"wagons\.json: top level: missing field 'inputs'"),
+        (lambda d: d["wagons"][1]["last_event"].pop("time_utc"), r"wagons\[1\]\.last_event: missing field 'time_utc'"),
+        (lambda d: d["wagons"][1].update(diagnosis={"corner": "x"}), r"wagons\[1\]\.diagnosis: missing field 'kind'"),
+        (lambda d: d["wagons"][2].update(days="two"), r"wagons\[2\]\.days: expected an integer"),
+        (lambda d: d["wagons"][2].update(state="BROKEN"), r"wagons\[2\]\.state: 'BROKEN' is none of"),
+        (lambda d: d["wagons"][2].update(wagon=d["wagons"][0]["wagon"]), r"wagons\[2\]: wagon '31-80-4557-003' is listed twice"),
+        (lambda d: d.update(format=2), r"wagons\.json: format 2, this bogiemon reads format 1"),
+    ],
+    ids=["wagon-field", "top-field", "last-event-field", "diagnosis-field", "type", "state", "duplicate", "format"],
+)
+def test_a_wagons_json_off_the_contract_is_one_line_naming_the_file_and_field(tmp_path: Path, change, message: str) -> None:
+    judged = _mutated(tmp_path, change)
+    with pytest.raises(ReportError, match=message) as info:
+        write_report(judged, tmp_path / "r.html")
+    assert "\n" not in str(info.value) and str(judged / "wagons.json") in str(info.value)
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_wagons_json_that_is_not_json_is_a_report_error(judged: Path, tmp_path: Path) -> None:
+    (judged / "wagons.json").write_text('{"format": 1, "wagons": [', encoding="utf-8")
+    with pytest.raises(ReportError, match=r"wagons\.json: not valid JSON \("):
+        write_report(judged, tmp_path / "r.html")
+
+
+def test_a_nan_reads_as_null_so_a_nan_attention_is_named(judged: Path, tmp_path: Path) -> None:
+    doc = read_wagons_json(judged)
+    doc["wagons"][0]["attention"] = float("nan")
+    doc["wagons"][0]["trend"] = float("nan")
+    write_wagons_json(judged, doc)  # Python's json writes NaN
+    with pytest.raises(ReportError, match=r"wagons\[0\]\.attention: expected a number$"):
+        write_report(judged, tmp_path / "r.html")
+    doc["wagons"][0]["attention"] = 1.0
+    write_wagons_json(judged, doc)
+    assert write_report(judged, tmp_path / "r.html").wagons == len(DEFAULT_FLEET)  # a NaN trend is none
+
+
+def test_a_diagnosis_with_unknown_parts_says_unknown_for_them(judged: Path, tmp_path: Path) -> None:
+    doc = read_wagons_json(judged)
+    confirmed = next(w for w in doc["wagons"] if w["wagon"] == CONFIRMED_WAGON)
+    confirmed["diagnosis"] = {"corner": None, "kind": "friction", "corner_confidence": None, "kind_confidence": 0.6}
+    write_wagons_json(judged, doc)
+    section = _section(_page(judged, tmp_path), CONFIRMED_WAGON)
+    assert 'diagnosis: <span class="muted">unknown</span> · friction (60%)' in section
+
+
+def test_a_missing_wagons_json_is_a_report_error(judged: Path, tmp_path: Path) -> None:
+    (judged / "wagons.json").unlink()
+    with pytest.raises(ReportError, match=r"wagons\.json: missing"):
+        write_report(judged, tmp_path / "r.html")
+
+
+def test_a_bad_event_line_names_its_line(judged: Path, tmp_path: Path) -> None:
+    lines = (judged / "events.jsonl").read_text().splitlines()
+    lines[2] = lines[2].replace('"kind":"', '"kind":"X')
+    (judged / "events.jsonl").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ReportError, match=r"events\.jsonl: line 3: kind: "):
+        write_report(judged, tmp_path / "r.html")
+
+
+def test_a_series_without_a_column_names_the_file_and_column(judged: Path, tmp_path: Path) -> None:
+    path = judged / "series" / f"wagon={NORMAL_WAGON}" / "part-0.parquet"
+    pq.write_table(pq.read_table(path).drop_columns(["trend"]), path)
+    with pytest.raises(ReportError, match=rf"wagon={NORMAL_WAGON}/part-0\.parquet: missing column 'trend'"):
+        write_report(judged, tmp_path / "r.html")
+
+
+def test_a_series_time_outside_unix_seconds_is_a_report_error(judged: Path, tmp_path: Path) -> None:
+    path = judged / "series" / f"wagon={NORMAL_WAGON}" / "part-0.parquet"
+    table = pq.read_table(path)
+    time_s = np.array(table.column("time_s").to_numpy())
+    time_s[5] = 1e300
+    pq.write_table(table.set_column(0, "time_s", pa.array(time_s)), path)
+    with pytest.raises(ReportError, match=r"part-0\.parquet: column 'time_s': a time outside Unix seconds"):
+        write_report(judged, tmp_path / "r.html")
+
+
+def test_a_wagon_id_that_is_no_folder_name_reads_no_series(tmp_path: Path) -> None:
+    judged = write_judged(tmp_path / "JUDGED", (WagonSpec("../../etc", "no_data"),))
+    page = _page(judged, tmp_path)
+    assert "no series is read for it" in _section(page, "../../etc")
+
+
+def test_an_unwritable_output_is_a_report_error(judged: Path, tmp_path: Path) -> None:
+    with pytest.raises(ReportError, match=r"r\.html: cannot be written"):
+        write_report(judged, tmp_path / "no-such-folder" / "r.html")
+
+
+# --- svg.py against direct references ---------------------------------------------------------
+
+
+def _absolute_points(d: str) -> tuple[list[float], list[float]]:
+    """The points of a path written by svg.path_d (M x y, then l dx dy ... or h.1), absolute."""
+    xs: list[float] = []
+    ys: list[float] = []
+    for command, args in re.findall(r"([Mlh])([^Mlh]*)", d):
+        numbers = [float(v) for v in re.findall(r"-?(?:\d+\.?\d*|\.\d+)", args)]
+        if command == "M":
+            xs.append(numbers[0])
+            ys.append(numbers[1])
+        elif command == "l":
+            for dx, dy in zip(numbers[::2], numbers[1::2], strict=True):
+                xs.append(xs[-1] + dx)
+                ys.append(ys[-1] + dy)
+    return xs, ys
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0, 1000, allow_nan=False), st.floats(-500, 500, allow_nan=False)), min_size=1, max_size=60), st.integers(0, 3))
+def test_path_d_draws_every_point_at_its_rounded_position(points: list[tuple[float, float]], n_breaks: int) -> None:
+    x = np.array([p[0] for p in points])
+    y = np.array([p[1] for p in points])
+    segments = np.sort(np.random.default_rng(len(points)).integers(0, n_breaks + 1, size=x.size))
+    xs, ys = _absolute_points(svg.path_d(x, y, segments))
+    assert np.allclose(xs, np.round(x, 1), atol=1e-6) and np.allclose(ys, np.round(y, 1), atol=1e-6)
+    assert svg.path_d(x, y, segments).count("M") == len(np.unique(segments))
+
+
+def _decimate_reference(t, v, seg, t0, t1, buckets):
+    groups: dict[tuple[int, int], list[int]] = {}
+    for i in range(t.size):
+        b = min(max(int((t[i] - t0) / (t1 - t0) * buckets), 0), buckets - 1)
+        groups.setdefault((int(seg[i]), b), []).append(i)
+    return sorted(max(g, key=lambda i: (v[i], -i)) for g in groups.values())
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0, 1e3, allow_nan=False), min_size=1, max_size=300), st.integers(1, 40), st.integers(0, 2**31))
+def test_decimate_max_keeps_each_buckets_largest_value(values: list[float], buckets: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.5, 20.0, size=len(values)))
+    v = np.array(values)
+    seg = svg.gap_segments(t, 15.0)
+    t0, t1 = float(t[0]), float(t[-1]) + 1.0
+    dt, dv, ds = svg.decimate_max(t, v, seg, t0, t1, buckets)
+    keep = _decimate_reference(t, v, seg, t0, t1, buckets)
+    assert dv.tolist() == v[keep].tolist() and dt.tolist() == t[keep].tolist() and ds.tolist() == seg[keep].tolist()
+    assert dt.size <= buckets + int(seg[-1]) + 1
+
+
+def test_gap_segments_break_only_where_windows_are_further_apart_than_the_gap() -> None:
+    t = np.array([0.0, 10, 20, 50, 60, 100, 110])
+    assert svg.gap_segments(t, 35.0).tolist() == [0, 0, 0, 0, 0, 1, 1]
+
+
+def test_run_ends_keeps_the_first_and_last_point_of_each_level() -> None:
+    level = np.array([5.0, 5, 5, 7, 7, 7, 7, 5])
+    assert svg.run_ends(level, np.array([0, 0, 0, 0, 1, 1, 1, 1])).tolist() == [0, 2, 3, 4, 6, 7]
+
+
+def test_non_positive_values_are_drawn_at_the_bottom_of_a_log_axis() -> None:
+    y = svg.log_px(np.array([0.0, -3.0, 1e-9, 1.0, 100.0]), 1.0, 100.0, 50.0, 210.0)
+    assert y.tolist() == [210.0, 210.0, 210.0, 210.0, 50.0]
+
+
+def test_log_range_spans_whole_decades_holding_values_and_levels() -> None:
+    assert svg.log_range(np.array([3.0, 12.0]), [67.0]) == (1.0, 100.0)
+    assert svg.log_range(np.array([1e-9, 1000.0])) == (0.1, 1000.0)  # at most four decades
+
+
+def test_time_ticks_fall_on_round_utc_times_with_the_date_at_midnight() -> None:
+    t0 = datetime(2026, 11, 30, 6, 2, tzinfo=UTC).timestamp()
+    t1 = datetime(2026, 12, 1, 12, 0, tzinfo=UTC).timestamp()
+    ticks = svg.time_ticks(t0, t1)
+    assert all(t % (3 * 3600) == 0 for t, _ in ticks)  # 30 hours: a tick every 3 hours
+    assert ticks[0][1] == "11-30 09:00" and ("12-01 00:00" in [label for _, label in ticks])
+    assert len(ticks) <= 10
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.text(min_size=1, max_size=20), st.text(min_size=1, max_size=20))
+def test_html_id_is_safe_and_one_to_one(a: str, b: str) -> None:
+    assert re.fullmatch(r"wagon-[A-Za-z0-9._~-]+", html_id(a))
+    assert (html_id(a) == html_id(b)) == (a == b)
