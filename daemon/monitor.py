@@ -14,7 +14,6 @@ once committed, in order, and nothing is reported before; each failure is logged
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -26,10 +25,10 @@ from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import LoadModel
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
+from bogiemon.daemon.windowing import GapMemory, StatusSpans, segment_start
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings, WindowIndicators
 from bogiemon.drivers.base import Block, SensorStatus
 
-GAP_MEMORY_S = 3600.0  # dropouts are judged over the last hour
 STATE_KEY = "monitor"
 # Events held while the store refuses commits: days of a faulty wagon's events (they come at
 # changes of state), a few MB at most. Past it the monitor stops (the service exits 3) rather
@@ -161,8 +160,8 @@ class Monitor:
         except (KeyError, ValueError, TypeError, AttributeError) as exc:  # written by something else than a monitor
             raise StoreError(f"{store.path}: the saved monitor state does not decode ({exc!r}); move the store aside to start afresh") from None
         self._judge = WindowJudge(settings, decision, health)
-        self._status_spans: deque[tuple[float, float, tuple[SensorStatus, ...]]] = deque(maxlen=10_000)
-        self._gap_times: deque[float] = deque(maxlen=10_000)
+        self._spans = StatusSpans()  # the windowing rules are daemon/windowing.py's, shared with fleet/
+        self._gaps = GapMemory()
         self._core: IndicatorStream | None = None
         self.settings = settings
 
@@ -192,16 +191,18 @@ class Monitor:
             tap(block)
         self.counters.blocks += 1
         self.counters.samples += block.n_samples
-        if self._core is None or self._core.settings.fs_hz != block.fs_hz:
-            processing = replace(self.settings.processing, fs_hz=block.fs_hz)
-            self._core = IndicatorStream(processing, self.settings.geometry, block.start_s, self.settings.health.clip_level_mps2)
+        new_segment, gap = segment_start(self._core.settings.fs_hz if self._core is not None else None, block)
+        if new_segment:
+            if self._core is None or self._core.settings.fs_hz != block.fs_hz:
+                processing = replace(self.settings.processing, fs_hz=block.fs_hz)
+                self._core = IndicatorStream(processing, self.settings.geometry, block.start_s, self.settings.health.clip_level_mps2)
+            else:
+                self._core.restart(block.start_s)
             self.counters.segments += 1
-        elif block.gap_before:
-            self._core.restart(block.start_s)
-            self.counters.segments += 1
-            self._gap_times.append(block.start_s)
-        if any(block.status):
-            self._status_spans.append((block.start_s, block.end_s, block.status))
+        if gap:
+            self._gaps.add(block.start_s)
+        self._spans.add(block)
+        assert self._core is not None
         events: list[Event] = []
         for window in self._core.process(block.accel_mps2):
             events += self._on_window(window)
@@ -209,7 +210,7 @@ class Monitor:
 
     def _on_window(self, window: WindowIndicators) -> list[Event]:
         self.counters.windows += 1
-        judged = self._judge.judge(window, self._status_over(window), self._gaps_before(window.end_s))
+        judged = self._judge.judge(window, self._spans.over(window.start_s, window.end_s), self._gaps.count_before(window.end_s))
         health, judgement, events = judged.health, judged.judgement, judged.events
         if judgement is not None:
             self.counters.judged += 1
@@ -260,17 +261,3 @@ class Monitor:
             for sink in self.sinks:
                 sink.publish(event)
         return batch
-
-    def _status_over(self, window: WindowIndicators) -> tuple[SensorStatus, SensorStatus, SensorStatus]:
-        while self._status_spans and self._status_spans[0][1] <= window.start_s:  # windows only move on
-            self._status_spans.popleft()
-        seen = [SensorStatus.OK] * 3
-        for start_s, end_s, status in self._status_spans:
-            if start_s < window.end_s and end_s > window.start_s:
-                seen = [a | b for a, b in zip(seen, status, strict=True)]
-        return (seen[0], seen[1], seen[2])
-
-    def _gaps_before(self, time_s: float) -> int:
-        while self._gap_times and self._gap_times[0] < time_s - GAP_MEMORY_S:
-            self._gap_times.popleft()
-        return sum(1 for t in self._gap_times if t <= time_s)
