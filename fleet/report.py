@@ -363,6 +363,8 @@ svg text{font-size:11px;fill:#555}
 text.el{font-size:10px;font-weight:600}
 .el-SUSPECTED{fill:#b36b00}.el-CONFIRMED{fill:#c62828}.el-CLEARED{fill:#2e7d32}.el-SENSOR_FAULT{fill:#7b1fa2}.el-SENSOR_CLEARED{fill:#546e7a}
 .m-SUSPECTED{fill:#ffe082}.m-CONFIRMED{fill:#ef9a9a}
+.brk{fill:#eeeeee;stroke:none}.bk{stroke:#616161;stroke-width:1.2}.gd{stroke:#bdbdbd}
+text.dl{fill:#333;font-weight:600}text.gl{font-size:10px;fill:#757575}
 .legend span{margin-right:14px;white-space:nowrap}
 .sw{display:inline-block;width:18px;height:0;border-top:2px solid;vertical-align:middle;margin-right:4px}
 .sw.d{border-top-style:dashed}
@@ -470,8 +472,16 @@ W_PX, LEFT_PX, RIGHT_PX = 1000.0, 58.0, 986.0
 LANES_PX = (12.0, 24.0, 36.0)  # the baselines of the event labels' rows
 MODE_TOP_PX, MODE_BOTTOM_PX = 42.0, 48.0
 SCORE_TOP_PX, SCORE_BOTTOM_PX = 50.0, 210.0
-TREND_TOP_PX, TREND_BOTTOM_PX = 224.0, 324.0
-H_PX = 344.0
+GAP_LABEL_PX = 223.5  # the baseline of the gaps' lengths, in the free strip between the panels
+TREND_TOP_PX, TREND_BOTTOM_PX = 230.0, 330.0
+TICKS_PX, DATES_PX = 344.0, 358.0  # the baselines of the time labels and of the dates under them
+H_PX = 364.0
+# The broken time axis: an idle stretch longer than MAX_IDLE_S (a night, a stop between runs) is
+# cut to GAP_PX, enough for its break mark and mostly for its length; shorter pauses keep their
+# true width, so the runs of a day still read as a day.
+MAX_IDLE_S = 600.0
+GAP_PX = 24.0
+GAP_CHAR_PX = 5.7  # a character of the gaps' 10 px labels
 
 
 @dataclass
@@ -488,7 +498,7 @@ def _hop_s(time_s: NDArray[np.float64]) -> float:
     return float(np.median(diffs)) if diffs.size else DEFAULT_HOP_S
 
 
-def _panel(plot: _Plot, series: Series, names: tuple[str, str, str], top_px: float, bottom_px: float, t0_s: float, t1_s: float, label: str) -> None:
+def _panel(plot: _Plot, series: Series, names: tuple[str, str, str], top_px: float, bottom_px: float, axis: svg.BrokenAxis, label: str) -> None:
     value_name, warning_name, alarm_name = names
     values: NDArray[np.float64] = getattr(series, value_name)
     judged = series.judged & np.isfinite(values)
@@ -504,6 +514,7 @@ def _panel(plot: _Plot, series: Series, names: tuple[str, str, str], top_px: flo
         p.append(svg.line(LEFT_PX, y, RIGHT_PX, y, "g"))
         p.append(svg.text(LEFT_PX - 4, y + 4, tick, anchor="end"))
     p.append(svg.rect(LEFT_PX, top_px, RIGHT_PX - LEFT_PX, bottom_px - top_px, "ax"))
+    _breaks(plot, axis, top_px, bottom_px)
     p.append(svg.text(LEFT_PX + 6, top_px + 13, label))
     if time_s.size == 0:
         p.append(svg.text((LEFT_PX + RIGHT_PX) / 2, (top_px + bottom_px) / 2, "no judged windows", anchor="middle"))
@@ -511,24 +522,70 @@ def _panel(plot: _Plot, series: Series, names: tuple[str, str, str], top_px: flo
     segments = svg.gap_segments(time_s, MAX_GAP_HOPS * _hop_s(series.time_s))
     n_segments = int(segments[-1]) + 1
     buckets = max(MAX_POINTS_PER_PANEL - n_segments, 100)
-    dt, dv, ds = svg.decimate_max(time_s, v, segments, t0_s, t1_s, buckets)
-    x = svg.linear_px(dt, t0_s, t1_s, LEFT_PX, RIGHT_PX)
+    # The buckets are columns of the drawn (broken) axis, not stretches of time: a run keeps its
+    # share of the points whatever the nights around it.
+    dx, dv, ds = svg.decimate_max(axis.px(time_s), v, segments, LEFT_PX, RIGHT_PX, buckets)
     for cls, level in (("lw", warning), ("la", alarm)):
         ok = np.isfinite(level)
         keep = svg.run_ends(level[ok], segments[ok])
         lt, lv, ls = time_s[ok][keep], level[ok][keep], segments[ok][keep]
-        d = svg.path_d(svg.linear_px(lt, t0_s, t1_s, LEFT_PX, RIGHT_PX), svg.log_px(lv, lo, hi, top_px, bottom_px), ls)
+        d = svg.path_d(axis.px(lt), svg.log_px(lv, lo, hi, top_px, bottom_px), ls)
         if d:
             p.append(f'<path class="{cls}" d="{d}"/>')
-    p.append(f'<path class="{"s" if value_name == "score" else "t"}" d="{svg.path_d(x, svg.log_px(dv, lo, hi, top_px, bottom_px), ds)}"/>')
-    plot.points += int(dt.size)
+    p.append(f'<path class="{"s" if value_name == "score" else "t"}" d="{svg.path_d(dx, svg.log_px(dv, lo, hi, top_px, bottom_px), ds)}"/>')
+    plot.points += int(dx.size)
 
 
-def _mode_strip(plot: _Plot, series: Series, t0_s: float, t1_s: float) -> None:
+def _breaks(plot: _Plot, axis: svg.BrokenAxis, top_px: float, bottom_px: float) -> None:
+    # Each cut gap as a shaded band over the panel, interrupting its frame, with a double slash
+    # across the frame's top and bottom edges (left out where many gaps leave too little room).
+    for gap in axis.gaps:
+        width = gap.right_px - gap.left_px
+        tip = f"no data for {svg.duration_label(gap.duration_s)}: {svg.utc_label(gap.start_s)} to {svg.utc_label(gap.end_s)} (cut from the axis)"
+        plot.parts.append(svg.rect(gap.left_px, top_px - 1, width, bottom_px - top_px + 2, "brk", tip))
+        if width < 8.0:
+            continue
+        mid = (gap.left_px + gap.right_px) / 2
+        for y in (top_px, bottom_px):
+            for dx in (-2.5, 2.5):
+                plot.parts.append(svg.line(mid + dx - 2.5, y + 4, mid + dx + 2.5, y - 4, "bk"))
+
+
+def _time_axis(plot: _Plot, axis: svg.BrokenAxis) -> None:
+    # Ticks at round UTC times on the data stretches, each day's date at its first data, and the
+    # length of each cut gap where it fits.
+    p = plot.parts
+    for t, label in svg.axis_ticks(axis):
+        x = float(axis.px(t))
+        half = svg.CHAR_PX * len(label) / 2
+        if x - half < LEFT_PX - 2 or x + half > W_PX:  # into the "UTC" on the left, or off the plot
+            continue
+        p.append(svg.line(x, SCORE_TOP_PX, x, TREND_BOTTOM_PX, "g"))
+        p.append(svg.text(x, TICKS_PX, label, anchor="middle"))
+    starts_px = set(np.round(axis.start_px, 6).tolist())
+    for t, label in svg.day_labels(axis):
+        x = float(axis.px(t))
+        if round(x, 6) not in starts_px:  # a midnight within a run; after a cut night the band is the boundary
+            p.append(svg.line(x, SCORE_TOP_PX, x, SCORE_BOTTOM_PX, "gd"))
+            p.append(svg.line(x, TREND_TOP_PX, x, TREND_BOTTOM_PX, "gd"))
+        p.append(svg.line(x, TREND_BOTTOM_PX, x, DATES_PX - 10, "gd"))
+        p.append(svg.text(min(x + 2, W_PX - svg.CHAR_PX * len(label)), DATES_PX, label, cls="dl"))  # a last day near the end stays on the plot
+    end_px = -math.inf
+    for gap in axis.gaps:
+        text = svg.duration_label(gap.duration_s)
+        width = GAP_CHAR_PX * len(text)
+        mid = (gap.left_px + gap.right_px) / 2
+        if mid - width / 2 >= max(end_px + 4, LEFT_PX) and mid + width / 2 <= RIGHT_PX:
+            p.append(svg.text(mid, GAP_LABEL_PX, text, cls="gl", anchor="middle"))
+            end_px = mid + width / 2
+    p.append(svg.text(LEFT_PX - 4, TICKS_PX, "UTC", anchor="end"))
+
+
+def _mode_strip(plot: _Plot, series: Series, axis: svg.BrokenAxis) -> None:
     # The decision's mode after each window, as a thin band: when the wagon was suspected or in alarm.
     if series.time_s.size == 0:
         return
-    x = svg.linear_px(series.time_s, t0_s, t1_s, LEFT_PX, RIGHT_PX)
+    x = axis.px(series.time_s)
     segments = svg.gap_segments(series.time_s, MAX_GAP_HOPS * _hop_s(series.time_s))
     change = np.ones(x.size, dtype=bool)
     change[1:] = (series.mode[1:] != series.mode[:-1]) | (segments[1:] != segments[:-1])
@@ -548,15 +605,17 @@ def _mode_strip(plot: _Plot, series: Series, t0_s: float, t1_s: float) -> None:
         plot.parts.append(svg.rect(x0, MODE_TOP_PX, x1 - x0, MODE_BOTTOM_PX - MODE_TOP_PX, f"m-{mode}"))
 
 
-def _event_marks(plot: _Plot, events: Sequence[EventMessage], t0_s: float, t1_s: float) -> None:
+def _event_marks(plot: _Plot, events: Sequence[EventMessage], axis: svg.BrokenAxis) -> None:
     lane_end = [-1e9] * len(LANES_PX)
     for ev in events:
-        x = float(svg.linear_px(np.array([ev.time_s]), t0_s, t1_s, LEFT_PX, RIGHT_PX)[0])
+        # At its true time: an event is a window's end, so it lies on the data; one that does not
+        # (a stray line) is drawn at the start of the gap it falls in, never inside a cut band.
+        x = float(axis.px(axis.snap(ev.time_s)))
         tip = f"{ev.kind} {svg.utc_label(ev.time_s)} (seq {ev.seq})"
         plot.parts.append(svg.line(x, MODE_TOP_PX, x, TREND_BOTTOM_PX, f"e e-{ev.kind}", tip))
         # A label in the first row where it does not overlap the one before; none if no row is free
         # (the line and its tooltip still say it).
-        width = 6.2 * len(ev.kind)
+        width = svg.CHAR_PX * len(ev.kind)
         anchor_right = x + width > RIGHT_PX
         start, end = (x - width - 2, x) if anchor_right else (x + 2, x + 2 + width)
         for lane, end_before in enumerate(lane_end):
@@ -566,31 +625,29 @@ def _event_marks(plot: _Plot, events: Sequence[EventMessage], t0_s: float, t1_s:
                 break
 
 
+def _broken_axis(series: Series, events: Sequence[EventMessage]) -> svg.BrokenAxis | None:
+    """The plot's broken time axis: from the series' windows (the events' times when there is no
+    series), idle gaps over MAX_IDLE_S cut; None when there is no time at all."""
+    time_s = series.time_s if series.time_s.size else np.array([m.time_s for m in events], dtype=np.float64)
+    if time_s.size == 0:
+        return None
+    # Never cut a pause the line does not break at: a series with a long hop keeps its line whole.
+    max_idle_s = max(MAX_IDLE_S, MAX_GAP_HOPS * _hop_s(series.time_s))
+    return svg.broken_axis(time_s, LEFT_PX, RIGHT_PX, max_idle_s, GAP_PX)
+
+
 def _plot(page: WagonPage) -> tuple[str, int]:
-    series = page.series
-    times = [series.time_s] if series is not None and series.time_s.size else []
-    if page.events:
-        times.append(np.array([m.time_s for m in page.events]))
+    s = page.series if page.series is not None else EMPTY_SERIES
+    found = _broken_axis(s, page.events)
+    # Without any time the panels are drawn empty on a placeholder axis, with no time labels.
+    axis = found if found is not None else svg.broken_axis(np.zeros(1), LEFT_PX, RIGHT_PX, MAX_IDLE_S, GAP_PX)
     plot = _Plot()
-    if times:
-        all_s = np.concatenate(times)
-        t0_s, t1_s = float(all_s.min()), float(all_s.max())
-        if t1_s - t0_s < 60.0:
-            t0_s, t1_s = t0_s - 30.0, t1_s + 30.0
-    else:
-        t0_s, t1_s = 0.0, 1.0
-    s = series if series is not None else EMPTY_SERIES
-    if times:
-        for t, label in svg.time_ticks(t0_s, t1_s):
-            x = float(svg.linear_px(np.array([t]), t0_s, t1_s, LEFT_PX, RIGHT_PX)[0])
-            plot.parts.append(svg.line(x, SCORE_TOP_PX, x, TREND_BOTTOM_PX, "g"))
-            plot.parts.append(svg.text(x, TREND_BOTTOM_PX + 14, label, anchor="middle"))
-    _mode_strip(plot, s, t0_s, t1_s)
-    _panel(plot, s, ("score", "warning", "alarm"), SCORE_TOP_PX, SCORE_BOTTOM_PX, t0_s, t1_s, "fused score")
-    _panel(plot, s, ("trend", "trend_warning", "trend_alarm"), TREND_TOP_PX, TREND_BOTTOM_PX, t0_s, t1_s, "trend")
-    _event_marks(plot, page.events, t0_s, t1_s)
-    if times:
-        plot.parts.append(svg.text(LEFT_PX - 4, TREND_BOTTOM_PX + 14, "UTC", anchor="end"))
+    if found is not None:
+        _time_axis(plot, axis)
+    _mode_strip(plot, s, axis)
+    _panel(plot, s, ("score", "warning", "alarm"), SCORE_TOP_PX, SCORE_BOTTOM_PX, axis, "fused score")
+    _panel(plot, s, ("trend", "trend_warning", "trend_alarm"), TREND_TOP_PX, TREND_BOTTOM_PX, axis, "trend")
+    _event_marks(plot, page.events, axis)
     label = f"fused score and trend of {page.entry['wagon']} over time"
     body = "".join(plot.parts)
     return (
@@ -648,7 +705,7 @@ def _legend() -> str:
         f'<span><i class="sw d" style="border-color:{ALARM_COLOUR}"></i>alarm level</span>',
     ]
     items += [f'<span class="k-{k}">| {k}</span>' for k in EVENT_KINDS]
-    return '<p class="legend small">' + "".join(items) + " (events; log scales, UTC)</p>"
+    return '<p class="legend small">' + "".join(items) + f" (events; log scales, UTC; an idle gap over {MAX_IDLE_S / 60:.0f} min is cut to a grey band with its length)</p>"
 
 
 def render(judged: Judged, title: str | None = None, written_utc: datetime | None = None) -> tuple[str, int]:

@@ -9,7 +9,9 @@ from pathlib import Path
 import pytest
 
 from bogiemon.daemon.cli.main import main
-from bogiemon.fleet.report import STATE_COLOURS
+import numpy as np
+
+from bogiemon.fleet.report import LEFT_PX, RIGHT_PX, SCORE_BOTTOM_PX, SCORE_COLOUR, SCORE_TOP_PX, STATE_COLOURS, W_PX
 from tests.fleet.browser import count_colour, find_chromium, read_png, visit
 
 pytestmark = [
@@ -19,6 +21,7 @@ pytestmark = [
 
 ROWS = "Array.prototype.map.call(document.querySelectorAll('table.fleet tbody tr'),function(tr){return tr.textContent;})"
 TABLE = "(function(e){var r=e.getBoundingClientRect();return [r.left,r.top,r.width,r.height];})(document.querySelector('table.fleet'))"
+FIRST_PLOT = "(function(e){var r=e.getBoundingClientRect();return [r.left,r.top,r.width,r.height];})(document.querySelector('section.w svg'))"
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +46,7 @@ def test_the_report_shows_the_faulty_wagons_first_with_their_corners(demo: Path)
     damaged = [w["wagon"] for w in truth["wagons"] if w["sensor_damages"]]
     assert len(faulty) == 2 and len(damaged) == 1
 
-    seen = visit((demo / "report.html").as_uri(), width=1400, height=1600, evaluate={"rows": ROWS, "table": TABLE})
+    seen = visit((demo / "report.html").as_uri(), width=1400, height=1600, evaluate={"rows": ROWS, "table": TABLE, "first_plot": FIRST_PLOT})
     (demo / "report.png").write_bytes(seen.png)
 
     assert seen.errors == []
@@ -58,3 +61,10 @@ def test_the_report_shows_the_faulty_wagons_first_with_their_corners(demo: Path)
     left, top_px, width, height = seen.values["table"]
     red = count_colour(read_png(seen.png), STATE_COLOURS["CONFIRMED"], box=(left, top_px, width, height))
     assert red > 50  # the two CONFIRMED badges, drawn in the table on the screen
+    left, top_px, width, _ = seen.values["first_plot"]  # the most urgent wagon's plot: a CONFIRMED one
+    scale = width / W_PX
+    panel = read_png(seen.png)[
+        round(top_px + SCORE_TOP_PX * scale) : round(top_px + SCORE_BOTTOM_PX * scale), round(left + LEFT_PX * scale) : round(left + RIGHT_PX * scale)
+    ]
+    blue = np.array([int(SCORE_COLOUR[i : i + 2], 16) for i in (1, 3, 5)])
+    assert np.any(np.all(np.abs(panel[..., :3] - blue) <= 24, axis=-1), axis=0).mean() > 0.6  # nights cut: the runs fill the plot

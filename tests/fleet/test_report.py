@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bogiemon.fleet import svg
-from bogiemon.fleet.report import MAX_POINTS_PER_PANEL, SCORE_TOP_PX, ReportError, html_id, write_report
+from bogiemon.fleet.report import GAP_PX, LEFT_PX, MAX_IDLE_S, MAX_POINTS_PER_PANEL, RIGHT_PX, SCORE_TOP_PX, ReportError, html_id, write_report
 from tests.fleet.judged_fixture import DEFAULT_FLEET, FleetShape, WagonSpec, read_wagons_json, write_judged, write_wagons_json
 
 CONFIRMED_WAGON = "31-80-4557-001"
@@ -155,6 +154,85 @@ def test_a_long_series_is_decimated_to_the_panel_limit_keeping_its_peak(tmp_path
     xs, ys = _absolute_points(d)
     assert len(xs) <= MAX_POINTS_PER_PANEL and summary.points <= 2 * MAX_POINTS_PER_PANEL
     assert min(ys) == pytest.approx(SCORE_TOP_PX, abs=0.05)  # the peak (1e4, the axis' top) is drawn
+
+
+# --- the broken time axis: nights and long pauses cut, runs at one scale ---------------------------
+
+
+def _series_times(judged: Path, wagon: str) -> np.ndarray:
+    return np.array(pq.read_table(judged / "series" / f"wagon={wagon}" / "part-0.parquet", columns=["time_s"]).column("time_s").to_numpy())
+
+
+def _bands(section: str) -> list[tuple[float, float]]:
+    return [(float(x), float(w)) for x, w in re.findall(r'<rect x="([-\d.]+)" y="[-\d.]+" width="([-\d.]+)" height="[-\d.]+" class="brk">', section)]
+
+
+def _covered_fraction(d: str) -> float:
+    """The share of the plot's width the path's strokes pass over: the union of its subpaths' x ranges."""
+    covered = 0.0
+    for sub in d.split("M")[1:]:
+        xs, _ = _absolute_points("M" + sub)
+        covered += max(xs) - min(xs)
+    return covered / (RIGHT_PX - LEFT_PX)
+
+
+def test_each_pause_over_the_idle_limit_is_a_band_on_both_panels_with_its_length(judged: Path, tmp_path: Path) -> None:
+    # Two days of runs from 06:02 to 07:01:50 and 11:02 to 12:01:50: pauses of 4 h, 18 h (the night), 4 h.
+    section = _section(_page(judged, tmp_path), NORMAL_WAGON)
+    bands = _bands(section)
+    assert len(bands) == 2 * 3 and all(w == GAP_PX for _, w in bands)
+    assert [x for x, _ in bands[:3]] == [x for x, _ in bands[3:]]  # the score and the trend panel share the axis
+    assert re.findall(r'class="gl" text-anchor="middle">([^<]*)</text>', section) == ["4 h", "18 h", "4 h"]
+    assert section.count("<title>no data for 18 h: 2026-11-30 12:01:50Z to 2026-12-01 06:02:00Z (cut from the axis)</title>") == 2
+
+
+def test_the_runs_fill_most_of_the_plot_and_keep_their_true_relative_lengths(judged: Path, tmp_path: Path) -> None:
+    # On the old linear axis four one-hour runs over 30 hours covered about 14 % of the width.
+    section = _section(_page(judged, tmp_path), NORMAL_WAGON)
+    d = re.search(r'<path class="s" d="([^"]*)"', section).group(1)
+    widths = [max(xs) - min(xs) for xs, _ in (_absolute_points("M" + sub) for sub in d.split("M")[1:])]
+    assert _covered_fraction(d) > 0.85
+    # Four equally long runs, equally wide: to a bucket of the decimation (0.6 px, which keeps each
+    # bucket's largest value at its own time) at either end.
+    assert max(widths) - min(widths) <= 1.3
+
+
+def test_each_day_is_labelled_with_its_date_at_its_first_run(judged: Path, tmp_path: Path) -> None:
+    section = _section(_page(judged, tmp_path), NORMAL_WAGON)
+    axis = svg.broken_axis(_series_times(judged, NORMAL_WAGON), LEFT_PX, RIGHT_PX, MAX_IDLE_S, GAP_PX)
+    dates = re.findall(r'<text x="([-\d.]+)" y="[-\d.]+" class="dl">([^<]*)</text>', section)
+    first_runs = [float(axis.start_px[0]), float(axis.start_px[2])]  # 06:02 on each day
+    assert [label for _, label in dates] == ["2026-11-30", "2026-12-01"]
+    assert [float(x) for x, _ in dates] == pytest.approx([x + 2 for x in first_runs], abs=0.05)
+
+
+def _event_lines(section: str) -> list[tuple[float, str]]:
+    """Each event mark's x and tooltip, in the page's order."""
+    found = re.findall(r'<line x1="([-\d.]+)" y1="[-\d.]+" x2="[-\d.]+" y2="[-\d.]+" class="e e-[A-Z_]+"><title>([^<]*)</title>', section)
+    return [(float(x), title) for x, title in found]
+
+
+def test_events_are_drawn_at_their_true_time_on_the_broken_axis(judged: Path, tmp_path: Path) -> None:
+    section = _section(_page(judged, tmp_path), CONFIRMED_WAGON)
+    axis = svg.broken_axis(_series_times(judged, CONFIRMED_WAGON), LEFT_PX, RIGHT_PX, MAX_IDLE_S, GAP_PX)
+    times = [e["time_s"] for e in _events(judged) if e["wagon_id"] == CONFIRMED_WAGON]
+    xs = [x for x, _ in _event_lines(section)]
+    assert len(times) >= 2 and xs == pytest.approx(axis.px(np.array(times)).tolist(), abs=0.05)
+
+
+def test_an_event_inside_a_cut_gap_is_drawn_at_the_gaps_start(judged: Path, tmp_path: Path) -> None:
+    lines = (judged / "events.jsonl").read_text().splitlines()
+    at = next(i for i, line in enumerate(lines) if json.loads(line)["wagon_id"] == CONFIRMED_WAGON)
+    event = json.loads(lines[at])
+    event["time_s"] = night_s = 1796078400.0  # 2026-11-30 22:40Z: the night, which is cut
+    lines[at] = json.dumps(event, separators=(",", ":"))
+    (judged / "events.jsonl").write_text("\n".join(lines) + "\n")
+    section = _section(_page(judged, tmp_path), CONFIRMED_WAGON)
+    night = _bands(section)[1]
+    # Its tooltip keeps its true time; its mark is at the band's left edge, where the night began.
+    tip = f"{event['kind']} {svg.utc_label(night_s)} (seq {event['seq']})"
+    assert svg.utc_label(night_s) == "2026-11-30 22:40:00Z"
+    assert [x for x, title in _event_lines(section) if title == tip] == [night[0]]
 
 
 # --- a bad JUDGED folder: one line naming the file and the field -------------------------------
@@ -334,15 +412,6 @@ def test_non_positive_values_are_drawn_at_the_bottom_of_a_log_axis() -> None:
 def test_log_range_spans_whole_decades_holding_values_and_levels() -> None:
     assert svg.log_range(np.array([3.0, 12.0]), [67.0]) == (1.0, 100.0)
     assert svg.log_range(np.array([1e-9, 1000.0])) == (0.1, 1000.0)  # at most four decades
-
-
-def test_time_ticks_fall_on_round_utc_times_with_the_date_at_midnight() -> None:
-    t0 = datetime(2026, 11, 30, 6, 2, tzinfo=UTC).timestamp()
-    t1 = datetime(2026, 12, 1, 12, 0, tzinfo=UTC).timestamp()
-    ticks = svg.time_ticks(t0, t1)
-    assert all(t % (3 * 3600) == 0 for t, _ in ticks)  # 30 hours: a tick every 3 hours
-    assert ticks[0][1] == "11-30 09:00" and ("12-01 00:00" in [label for _, label in ticks])
-    assert len(ticks) <= 10
 
 
 @settings(max_examples=100, deadline=None)

@@ -2,9 +2,22 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from bogiemon.fleet.report import ALARM_COLOUR, SCORE_COLOUR, STATE_COLOURS, TREND_COLOUR, html_id, write_report
+from bogiemon.fleet.report import (
+    ALARM_COLOUR,
+    LEFT_PX,
+    RIGHT_PX,
+    SCORE_BOTTOM_PX,
+    SCORE_COLOUR,
+    SCORE_TOP_PX,
+    STATE_COLOURS,
+    TREND_COLOUR,
+    W_PX,
+    html_id,
+    write_report,
+)
 from tests.fleet.browser import count_colour, find_chromium, read_png, visit
 from tests.fleet.judged_fixture import DEFAULT_FLEET, WagonSpec, write_judged
 
@@ -74,6 +87,19 @@ def test_every_wagon_gets_a_drawn_plot_with_its_lines_on_the_screen(seen) -> Non
     assert plot[1] + plot[3] <= 2000  # on the screenshot
     for colour in (SCORE_COLOUR, TREND_COLOUR, ALARM_COLOUR):
         assert count_colour(pixels, colour, plot) > 30, colour
+
+
+def test_the_confirmed_wagons_score_line_spans_most_of_its_plot_now_that_nights_are_cut(seen) -> None:
+    # Its four one-hour runs over 30 hours drew over about 14 % of the width on a linear time axis.
+    _, result = seen
+    left, top, width, _ = result.values["confirmed_plot"]
+    scale = width / W_PX  # CSS pixels per viewBox pixel
+    panel = read_png(result.png)[
+        round(top + SCORE_TOP_PX * scale) : round(top + SCORE_BOTTOM_PX * scale), round(left + LEFT_PX * scale) : round(left + RIGHT_PX * scale)
+    ]
+    blue = np.array([int(SCORE_COLOUR[i : i + 2], 16) for i in (1, 3, 5)])
+    drawn = np.any(np.all(np.abs(panel - blue) <= 24, axis=-1), axis=0)  # the screen columns the score line is drawn in
+    assert drawn.size > 500 and drawn.mean() > 0.6
 
 
 def test_hostile_text_is_shown_as_text_and_runs_nothing(seen) -> None:
