@@ -9,7 +9,8 @@ Each run starts with the wagon in static equilibrium on a level stretch; the irr
 in over PREROLL_RAMP_M and the run continues PREROLL_SETTLE_M further before the recording's
 time 0 (the pre-roll, at the profile's initial speed), so the recording holds no start-up
 transient. All randomness comes from the scenario's seed: the track from one child of
-numpy.random.SeedSequence(seed), the sensor noise from the other.
+numpy.random.SeedSequence(seed), the sensor noise from the other. Scenarios of model "b"
+(Scenario.model) run through simulator/model_b instead, with its own pre-roll and seeds.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +33,9 @@ from bogiemon.simulator.sensors import anti_alias_sos
 from bogiemon.simulator.suspension import BOGIES, CORNER_ORDER
 from bogiemon.simulator.track import TrackProfile, generate_track
 from bogiemon.simulator.vehicle import State, VehicleModel, build_model, static_equilibrium
+
+if TYPE_CHECKING:
+    from bogiemon.simulator.model_b import bodies as model_b_bodies
 
 PREROLL_RAMP_M = 20.0
 PREROLL_SETTLE_M = 20.0
@@ -52,8 +56,10 @@ class SimulationResult:
     scenario: Scenario
     time_s: NDArray[np.float64]
     accel_mps2: NDArray[np.float64]
-    model: VehicleModel
-    final_state: State  # at the end of the run (for checks)
+    # The wagon that ran, and its state at the end of the run (for checks): model A's types for a
+    # scenario of model "a", model_b.bodies' WagonModel and State for "b".
+    model: VehicleModel | model_b_bodies.WagonModel
+    final_state: State | model_b_bodies.State
     derived: dict[str, Any]  # integration step, pre-roll, each corner's Kz and Fs, ...
 
 
@@ -157,16 +163,16 @@ def simulate(scenario: Scenario, progress: Progress | None = None) -> Simulation
 def simulate_batch(scenarios: Sequence[Scenario], progress: Progress | None = None) -> list[SimulationResult]:
     """Run many scenarios together (the kernel's scenario axis, on every core); results in input order.
 
-    Scenarios with the same sample rate and integration step share kernel calls; each result
-    is exactly what simulate() gives for that scenario alone.
+    Scenarios of the same model (Scenario.model), sample rate and integration step share kernel
+    calls; each result is exactly what simulate() gives for that scenario alone.
     """
-    groups: dict[tuple[float, int], list[int]] = {}
+    groups: dict[tuple[str, float, int], list[int]] = {}
     for i, s in enumerate(scenarios):
-        groups.setdefault((s.fs_hz, s.oversampling), []).append(i)
+        groups.setdefault((s.model, s.fs_hz, s.oversampling), []).append(i)
     results: list[SimulationResult | None] = [None] * len(scenarios)
     total_work = sum(float(s.duration_s) for s in scenarios) or 1.0
     done_work = 0.0
-    for indices in groups.values():
+    for (model, _, _), indices in groups.items():
         group = [scenarios[i] for i in indices]
         weight = sum(s.duration_s for s in group) / total_work
 
@@ -174,7 +180,13 @@ def simulate_batch(scenarios: Sequence[Scenario], progress: Progress | None = No
             if progress is not None:
                 progress(min(1.0, base + weight * fraction))
 
-        for i, result in zip(indices, _run_group(group, report), strict=True):
+        if model == "b":
+            from bogiemon.simulator.model_b.run import run_group as run_group_b  # model B's kernel, when used
+
+            group_results = run_group_b(group, report)
+        else:
+            group_results = _run_group(group, report)
+        for i, result in zip(indices, group_results, strict=True):
             results[i] = result
         done_work += weight
     return [r for r in results if r is not None]

@@ -1,8 +1,8 @@
 """A scenario: everything that defines one simulated run, and its JSON sidecar.
 
-A scenario is complete: the load, the speed profile, the track and its seed, the faults, the
-sensors (corners, spacing, sample rate, errors), the integration step and every vehicle
-parameter, so that the sidecar written beside a recording reproduces it exactly.
+A scenario is complete: the wagon model ("a" or "b"), the load, the speed profile, the track and
+its seed, the faults, the sensors (corners, spacing, sample rate, errors), the integration step and
+every vehicle parameter, so that the sidecar written beside a recording reproduces it exactly.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import numpy as np
 
 from bogiemon.detection.kinematics import BogieGeometry, Corner
 from bogiemon.simulator.errors import SimulationError
+from bogiemon.simulator.model_b import parameters as model_b_parameters
 from bogiemon.simulator.params import LOADS, default_parameter_set
 from bogiemon.simulator.sensors import SensorModel
 from bogiemon.simulator.suspension import Fault
@@ -26,6 +27,9 @@ from bogiemon.simulator.track import TRACKS
 SIDECAR_FORMAT = "bogiemon-simulation/1"
 MONITORED_BOGIE = "leading"  # the sensors sit on the wagon's leading bogie
 MAX_SPEED_KMH = 200.0
+# The wagon models: "a" (simulator/vehicle.py, docs/simulator.md) and "b", built independently of it
+# (simulator/model_b, docs/simulator-b.md) so that what is fitted on one can be judged on the other.
+MODELS = ("a", "b")
 
 
 @dataclass(frozen=True)
@@ -125,10 +129,21 @@ class Scenario:
     # Corners that differ from the nominal from the start, before and after the fault onset: a
     # wagon's own tolerances (custom faults), on which the `faults` appear at fault_onset_s.
     standing_faults: tuple[Fault, ...] = ()
+    # Which wagon model runs the scenario (MODELS); `parameters` must be that model's set.
+    model: str = "a"
 
     def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise SimulationError(f"unknown model '{self.model}': use 'a' or 'b' (docs/simulator-b.md)")
         if self.parameters is None:
-            object.__setattr__(self, "parameters", default_parameter_set())
+            default = model_b_parameters.default_parameter_set() if self.model == "b" else default_parameter_set()
+            object.__setattr__(self, "parameters", default)
+        if model_b_parameters.is_parameter_set(self.parameters) != (self.model == "b"):
+            given = "model B's" if self.model == "a" else "model A's"
+            raise SimulationError(
+                f"model {self.model} cannot run {given} parameter set: give the model's own "
+                "(or none for the shipped one)"
+            )
         object.__setattr__(self, "faults", tuple(self.faults))
         object.__setattr__(self, "standing_faults", tuple(self.standing_faults))
         if self.load not in LOADS:
@@ -193,6 +208,7 @@ class Scenario:
             "max_step_s": self.max_step_s,
             "parameters": self.parameters,
             "standing_faults": [f.to_dict() for f in self.standing_faults],
+            "model": self.model,
         }
 
     @classmethod
@@ -224,6 +240,8 @@ class Scenario:
                 max_step_s=float(data["max_step_s"]),
                 parameters=data["parameters"],
                 standing_faults=tuple(Fault.from_dict(f) for f in data.get("standing_faults", ())),
+                # Sidecars written before model B existed are model A's.
+                model=str(data.get("model", "a")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, SimulationError):

@@ -21,6 +21,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     )
     p.add_argument("-o", "--output", required=True, metavar="FILE.csv", help="recording to write (sidecar: FILE.json)")
     p.add_argument("--load", choices=("full", "tare"), default="full", help="carbody 80.6 t or 6.86 t (default full)")
+    p.add_argument(
+        "--model",
+        choices=("a", "b"),
+        default="a",
+        help="wagon model: a (docs/simulator.md, default) or b, built independently of it (docs/simulator-b.md)",
+    )
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--speed-kmh", type=float, default=80.0, help="constant speed (default 80)")
     speed.add_argument(
@@ -79,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         geometry=config.bogie_geometry(),
         sensor=SensorModel(noise_mps2=args.noise_mps2, bias_mps2=tuple(args.bias_mps2), quantum_mps2=args.quantum_mps2),
         max_step_s=args.max_step_s,
+        model=args.model,
     )
     bar = ProgressBar(sys.stderr, f"simulating {scenario.duration_s:g} s") if sys.stderr.isatty() and not args.quiet else None
     try:
@@ -96,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             faults += f" from {scenario.fault_onset_s:g} s"
         print(
             f"{args.output}: {scenario.n_samples} samples at {scenario.fs_hz:g} Hz ({scenario.duration_s:g} s), "
-            f"{scenario.load} load, {speed.spec()} km/h on {scenario.track}, seed {scenario.seed}, {faults}; "
-            f"scenario in {sidecar}"
+            f"{scenario.load} load, {speed.spec()} km/h on {scenario.track}, seed {scenario.seed}, {faults}, "
+            f"model {scenario.model}; scenario in {sidecar}"
         )
     return 0

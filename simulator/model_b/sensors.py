@@ -1,0 +1,159 @@
+"""Model B's accelerometers: a MEMS-like sensor from the frame's specific force to converter codes.
+
+In the kernel, at the integration rate, for each channel (a reference of the same chain is
+`SensorChain`, tested against the kernel):
+  1. the vertical specific force at the sensor's corner of the rigid frame (gravity included) plus
+     the cross-axis sensitivity times the frame's lateral acceleration (`lateral_acceleration`:
+     not a degree of freedom of the vertical model, synthesised: a hunting-like narrow band at
+     speed / wavelength and a broad-band part, both growing with speed);
+  2. the channel's sample skew, a fractional delay (linear interpolation on a short delay line);
+  3. the mounting/sensor resonance, a lightly damped second-order low-pass (bilinear transform,
+     prewarped at the resonance; it lifts the response by (f / f_n)^2 below the resonance);
+  4. the sensor's digital anti-alias filter, a 4th-order Butterworth at a fraction of the output
+     rate (MEMS output filters sit at ODR/4 to ODR/2, so some aliasing remains, as in real parts),
+     and decimation to the output rate.
+After the kernel, at the output rate (`convert`): the channel's gain and zero-g bias, a 1/f-like
+bias drift (four Ornstein-Uhlenbeck processes a decade apart, which approximate flicker noise,
+plus a random walk), white noise of the given density shaped by the same anti-alias response,
+clipping at the range and quantisation to the converter's step.
+Model A's sensor is a Chebyshev anti-alias with gain, constant bias, white noise and quantisation.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import signal
+
+from bogiemon.simulator.model_b.parameters import SensorParameters
+
+if TYPE_CHECKING:
+    from bogiemon.simulator.scenario import SpeedProfile
+
+FloatArray = NDArray[np.float64]
+STANDARD_GRAVITY_MPS2 = 9.80665  # the unit of a sensor's range in g
+DELAY_LINE = 16  # samples kept per channel for the skew (a power of two: the kernel masks the index)
+ANTIALIAS_ORDER = 4
+N_SECTIONS = 3  # the resonance, then the two sections of the Butterworth
+REFERENCE_SPEED_MPS = 100.0 / 3.6
+DRIFT_TIME_CONSTANTS_S = (0.3, 3.0, 30.0, 300.0)
+LATERAL_BAND_HZ = (0.5, 20.0)
+IDENTITY_SECTION = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
+
+
+def resonance_section(resonance_hz: float, damping_ratio: float, rate_hz: float) -> FloatArray:
+    """One second-order section: omega^2 / (s^2 + 2 zeta omega s + omega^2) at the step rate (unit DC gain)."""
+    if resonance_hz <= 0.0:
+        return IDENTITY_SECTION.copy()
+    omega = 2.0 * rate_hz * math.tan(math.pi * resonance_hz / rate_hz)  # prewarped
+    b, a = signal.bilinear([omega**2], [1.0, 2.0 * damping_ratio * omega, omega**2], fs=rate_hz)
+    return np.concatenate([b / a[0], a / a[0]])
+
+
+def chain_sos(sensor: SensorParameters, rate_hz: float, fs_out_hz: float) -> FloatArray:
+    """(3, 6) sections of the in-kernel chain: resonance, then the anti-alias Butterworth."""
+    butter = signal.butter(ANTIALIAS_ORDER, sensor.antialias_fraction_of_fs * fs_out_hz, fs=rate_hz, output="sos")
+    return np.vstack([resonance_section(sensor.resonance_hz, sensor.resonance_damping_ratio, rate_hz)[None, :], butter])
+
+
+def output_sos(sensor: SensorParameters, fs_out_hz: float) -> FloatArray:
+    """The anti-alias response at the output rate (it shapes the white noise)."""
+    return signal.butter(ANTIALIAS_ORDER, sensor.antialias_fraction_of_fs * fs_out_hz, fs=fs_out_hz, output="sos")
+
+
+def skew_steps(sensor: SensorParameters, step_s: float) -> FloatArray:
+    return np.array(sensor.skew_s) / step_s
+
+
+class SensorChain:
+    """Reference of the kernel's per-channel chain (steps 1-4 of the module docstring), block by block.
+
+    Input: (n, 3) specific force at the step rate (with gravity) and (n,) lateral acceleration;
+    output: every `factor`-th filtered sample. Starts in steady state at `start_mps2`.
+    """
+
+    def __init__(self, sensor: SensorParameters, rate_hz: float, fs_out_hz: float, factor: int, start_mps2: float) -> None:
+        self.factor = factor
+        self._sos = chain_sos(sensor, rate_hz, fs_out_hz)
+        self._cross = np.array(sensor.cross_axis)
+        self._skew = skew_steps(sensor, 1.0 / rate_hz)
+        self._history = np.full((DELAY_LINE, 3), start_mps2)
+        self._zi = signal.sosfilt_zi(self._sos)[:, :, None] * np.full(3, start_mps2)[None, None, :]
+
+    def process(self, vertical_mps2: FloatArray, lateral_mps2: FloatArray) -> FloatArray:
+        x = np.asarray(vertical_mps2, dtype=np.float64) + np.asarray(lateral_mps2)[:, None] * self._cross[None, :]
+        padded = np.vstack([self._history, x])
+        delayed = np.empty_like(x)
+        n0 = DELAY_LINE
+        for ch in range(3):
+            i0 = int(self._skew[ch])
+            f = self._skew[ch] - i0
+            k = np.arange(x.shape[0]) + n0
+            delayed[:, ch] = (1.0 - f) * padded[k - i0, ch] + f * padded[k - i0 - 1, ch]
+        self._history = padded[-DELAY_LINE:]
+        y, self._zi = signal.sosfilt(self._sos, delayed, axis=0, zi=self._zi)
+        return y[:: self.factor]
+
+
+def lateral_acceleration(
+    sensor: SensorParameters, speed: SpeedProfile, time_s: FloatArray, fs_hz: float, rng: np.random.Generator
+) -> FloatArray:
+    """The frame's lateral acceleration (m/s^2) at the output-rate times `time_s` (uniform, 1 / fs_hz apart).
+
+    Hunting-like part: sqrt(2) a_h cos(phi), phi' = 2 pi f_h + phase diffusion, f_h = V / wavelength,
+    the diffusion giving a Lorentzian band of full width `hunting_bandwidth_fraction` x f_h; plus
+    band-limited noise (0.5-20 Hz); both scale with V / (100 km/h).
+    """
+    n = time_s.size
+    v = np.interp(time_s, *speed.arrays_mps())
+    scale = v / REFERENCE_SPEED_MPS
+    if n == 0 or not np.any(scale > 0):
+        return np.zeros(n)
+    dt = 1.0 / fs_hz
+    f_h = v / sensor.hunting_wavelength_m
+    diffusion = 2.0 * math.pi * sensor.hunting_bandwidth_fraction * f_h  # rad^2/s
+    phase = rng.uniform(0.0, 2.0 * math.pi) + np.cumsum(
+        2.0 * math.pi * f_h * dt + np.sqrt(diffusion * dt) * rng.standard_normal(n)
+    )
+    hunting = math.sqrt(2.0) * sensor.hunting_rms_mps2_at_100_kmh * scale * np.cos(phase)
+    high = min(LATERAL_BAND_HZ[1], 0.4 * fs_hz)
+    sos = signal.butter(2, [LATERAL_BAND_HZ[0], high], btype="bandpass", fs=fs_hz, output="sos")
+    impulse = signal.sosfilt(sos, np.r_[1.0, np.zeros(int(20 * fs_hz))])
+    gain = math.sqrt(float(np.sum(impulse**2)))  # the filter's noise gain: unit-variance output below
+    broad = signal.sosfilt(sos, rng.standard_normal(n)) / gain
+    return hunting + sensor.random_lateral_rms_mps2_at_100_kmh * scale * broad
+
+
+def bias_drift(sensor: SensorParameters, n: int, fs_hz: float, rng: np.random.Generator) -> FloatArray:
+    """(n, 3) slow offset drift: flicker-like (four OU processes a decade apart) plus a random walk."""
+    dt = 1.0 / fs_hz
+    out = np.zeros((n, 3))
+    if sensor.bias_instability_mps2 > 0:
+        sigma = sensor.bias_instability_mps2 / math.sqrt(len(DRIFT_TIME_CONSTANTS_S))
+        for tau in DRIFT_TIME_CONSTANTS_S:
+            a = math.exp(-dt / tau)
+            drive = sigma * math.sqrt(1.0 - a * a) * rng.standard_normal((n, 3))
+            start = sigma * rng.standard_normal(3)  # the stationary distribution
+            out += signal.lfilter([1.0], [1.0, -a], drive, axis=0, zi=(a * start)[None, :])[0]
+    if sensor.bias_random_walk_mps2_per_sqrt_s > 0:
+        out += np.cumsum(sensor.bias_random_walk_mps2_per_sqrt_s * math.sqrt(dt) * rng.standard_normal((n, 3)), axis=0)
+    return out
+
+
+def convert(accel_mps2: FloatArray, sensor: SensorParameters, fs_hz: float, rng: np.random.Generator) -> FloatArray:
+    """The decimated chain output (n, 3) to what the converter reports: gain, bias, drift, noise, range, LSB."""
+    n = accel_mps2.shape[0]
+    out = accel_mps2 * np.array(sensor.gain) + np.array(sensor.bias_mps2)
+    out = out + bias_drift(sensor, n, fs_hz, rng)
+    if sensor.noise_density_mps2_per_sqrt_hz > 0:
+        white = sensor.noise_density_mps2_per_sqrt_hz * math.sqrt(fs_hz / 2.0) * rng.standard_normal((n, 3))
+        out = out + signal.sosfilt(output_sos(sensor, fs_hz), white, axis=0)
+    if sensor.bits:
+        full_scale = sensor.range_g * STANDARD_GRAVITY_MPS2
+        lsb = 2.0 * full_scale / 2**sensor.bits
+        codes = np.clip(np.round(out / lsb), -(2 ** (sensor.bits - 1)), 2 ** (sensor.bits - 1) - 1)
+        out = codes * lsb
+    return out
