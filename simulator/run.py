@@ -28,7 +28,7 @@ from scipy import signal
 from bogiemon.drivers.recording import write_csv_recording
 from bogiemon.simulator import kernel
 from bogiemon.simulator.errors import SimulationError
-from bogiemon.simulator.scenario import MONITORED_BOGIE, Scenario, read_sidecar, sidecar_path, write_sidecar
+from bogiemon.simulator.scenario import MONITORED_BOGIE, Scenario, read_sidecar, sidecar_path, speed_table, write_sidecar
 from bogiemon.simulator.sensors import anti_alias_sos
 from bogiemon.simulator.suspension import BOGIES, CORNER_ORDER
 from bogiemon.simulator.track import TrackProfile, generate_track
@@ -207,13 +207,7 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
     corner = np.array([p.healthy_model.corner_table() for p in preps])
     # Output samples until each scenario's faults appear (0: none pending).
     until_onset = np.array([p.onset_n for p in preps], dtype=np.int64)
-    n_points = max(len(p.scenario.speed.points) for p in preps)
-    speed_t = np.zeros((n_batch, n_points))
-    speed_v = np.zeros((n_batch, n_points))
-    n_speed = np.zeros(n_batch, dtype=np.int64)
-    for b, p in enumerate(preps):
-        t, spd = p.scenario.speed.arrays_mps()
-        speed_t[b, : t.size], speed_v[b, : t.size], n_speed[b] = t, spd, t.size
+    speed_t, speed_v, n_speed = speed_table([p.scenario.speed for p in preps])
     n_rail = max(p.track.left_m.size for p in preps)
     rail_left = np.empty((n_batch, n_rail))
     rail_right = np.empty((n_batch, n_rail))

@@ -98,6 +98,19 @@ class SpeedProfile:
         return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(grid)))
 
 
+def speed_table(profiles: list[SpeedProfile]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernels' packing of a batch's speed profiles: times (s) and speeds (m/s) per scenario,
+    padded to the longest, with each one's number of points."""
+    n_points = max(len(p.points) for p in profiles)
+    speed_t = np.zeros((len(profiles), n_points))
+    speed_v = np.zeros((len(profiles), n_points))
+    n_speed = np.zeros(len(profiles), dtype=np.int64)
+    for b, profile in enumerate(profiles):
+        t, v = profile.arrays_mps()
+        speed_t[b, : t.size], speed_v[b, : t.size], n_speed[b] = t, v, t.size
+    return speed_t, speed_v, n_speed
+
+
 def _geometry_dict(geometry: BogieGeometry) -> dict[str, Any]:
     return {
         "wheelbase_m": geometry.wheelbase_m,

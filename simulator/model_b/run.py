@@ -22,7 +22,7 @@ from bogiemon.simulator.model_b import kernel, sensors
 from bogiemon.simulator.model_b.bodies import N_DOF, State, WagonModel, build_models, static_equilibrium
 from bogiemon.simulator.model_b.parameters import check_step
 from bogiemon.simulator.model_b.track import generate_track, track_model
-from bogiemon.simulator.scenario import MONITORED_BOGIE, Scenario
+from bogiemon.simulator.scenario import MONITORED_BOGIE, Scenario, speed_table
 from bogiemon.simulator.suspension import BOGIES, CORNER_ORDER
 from bogiemon.simulator.track import TrackProfile
 
@@ -167,13 +167,7 @@ def run_group(
     veh = np.array([kernel.pack_vehicle(p.model.params, p.track.ds_m, dt_s) for p in preps])
     corner = np.array([p.healthy_model.corner_table() for p in preps])
     until_onset = np.array([p.onset_n for p in preps], dtype=np.int64)
-    n_points = max(len(p.scenario.speed.points) for p in preps)
-    speed_t = np.zeros((n_batch, n_points))
-    speed_v = np.zeros((n_batch, n_points))
-    n_speed = np.zeros(n_batch, dtype=np.int64)
-    for b, p in enumerate(preps):
-        t, spd = p.scenario.speed.arrays_mps()
-        speed_t[b, : t.size], speed_v[b, : t.size], n_speed[b] = t, spd, t.size
+    speed_t, speed_v, n_speed = speed_table([p.scenario.speed for p in preps])
     rail_left = _pad([p.track.left_m for p in preps])
     rail_right = _pad([p.track.right_m for p in preps])
     lateral = _pad([p.lateral_mps2 for p in preps])
