@@ -25,8 +25,8 @@ from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import LoadModel
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
-from bogiemon.daemon.windowing import GapMemory, StatusSpans, segment_start
-from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings, WindowIndicators
+from bogiemon.daemon.windowing import BlockWindows
+from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
 from bogiemon.drivers.base import Block, SensorStatus
 
 STATE_KEY = "monitor"
@@ -160,10 +160,12 @@ class Monitor:
         except (KeyError, ValueError, TypeError, AttributeError) as exc:  # written by something else than a monitor
             raise StoreError(f"{store.path}: the saved monitor state does not decode ({exc!r}); move the store aside to start afresh") from None
         self._judge = WindowJudge(settings, decision, health)
-        self._spans = StatusSpans()  # the windowing rules are daemon/windowing.py's, shared with fleet/
-        self._gaps = GapMemory()
-        self._core: IndicatorStream | None = None
+        self._windows = self._block_windows(settings)  # daemon/windowing.py's rules, shared with fleet/
         self.settings = settings
+
+    @staticmethod
+    def _block_windows(settings: MonitorSettings) -> BlockWindows:
+        return BlockWindows(lambda fs_hz: replace(settings.processing, fs_hz=fs_hz), settings.geometry, settings.health.clip_level_mps2)
 
     @property
     def mode(self) -> str:
@@ -173,7 +175,9 @@ class Monitor:
         """Apply a reloaded config; the alarm state carries over, the windows restart."""
         self.settings = settings
         self._judge.reconfigure(settings)
-        self._core = None
+        windows = self._block_windows(settings)
+        windows.spans, windows.gaps = self._windows.spans, self._windows.gaps  # the gaps and status bits carry on
+        self._windows = windows
 
     def state_dict(self) -> dict[str, Any]:
         return {"decision": self._judge.decider.state.as_dict(), "health": self._judge.health.state.as_dict()}
@@ -191,26 +195,17 @@ class Monitor:
             tap(block)
         self.counters.blocks += 1
         self.counters.samples += block.n_samples
-        new_segment, gap = segment_start(self._core.settings.fs_hz if self._core is not None else None, block)
-        if new_segment:
-            if self._core is None or self._core.settings.fs_hz != block.fs_hz:
-                processing = replace(self.settings.processing, fs_hz=block.fs_hz)
-                self._core = IndicatorStream(processing, self.settings.geometry, block.start_s, self.settings.health.clip_level_mps2)
-            else:
-                self._core.restart(block.start_s)
-            self.counters.segments += 1
-        if gap:
-            self._gaps.add(block.start_s)
-        self._spans.add(block)
-        assert self._core is not None
+        segments_before = self._windows.segments
+        windowed = self._windows.feed(block)
+        self.counters.segments += self._windows.segments - segments_before
         events: list[Event] = []
-        for window in self._core.process(block.accel_mps2):
-            events += self._on_window(window)
+        for w in windowed:
+            events += self._on_window(w.window, w.status, w.gaps_last_hour)
         return events
 
-    def _on_window(self, window: WindowIndicators) -> list[Event]:
+    def _on_window(self, window: WindowIndicators, status: tuple[SensorStatus, SensorStatus, SensorStatus], gaps_last_hour: int) -> list[Event]:
         self.counters.windows += 1
-        judged = self._judge.judge(window, self._spans.over(window.start_s, window.end_s), self._gaps.count_before(window.end_s))
+        judged = self._judge.judge(window, status, gaps_last_hour)
         health, judgement, events = judged.health, judged.judgement, judged.events
         if judgement is not None:
             self.counters.judged += 1

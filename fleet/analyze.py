@@ -35,8 +35,8 @@ import pyarrow.parquet as pq
 from bogiemon.daemon.analysis import recording_settings
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.health import assess_window
-from bogiemon.daemon.windowing import GapMemory, StatusSpans, segment_start
-from bogiemon.detection import IndicatorStream, WindowIndicators
+from bogiemon.daemon.windowing import BlockWindows
+from bogiemon.detection import WindowIndicators
 from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.drivers.candb import load_layout
 from bogiemon.drivers.replay import open_replay
@@ -148,46 +148,35 @@ def _blocks(source: Source) -> list[Block]:
 
 
 class _DayWindows:
-    """The monitor's windowing over one day's blocks (daemon/monitor.py), with each window's context."""
+    """The monitor's windowing over one day's blocks (daemon/windowing.py), with each window's context."""
 
     def __init__(self, config: BogiemonConfig) -> None:
-        self.config = config
         self.health = config.health_settings()
         self.geometry = config.bogie_geometry()
         self.load_model = config.load_model()
-        self.core: IndicatorStream | None = None
-        self.spans = StatusSpans()
-        self.gaps = GapMemory()  # the day's own: the judge counts them across days again
-        self.segment = -1
-        self.segment_starts: list[tuple[float, float]] = []  # (start_s, fs_hz) of every segment
+        self.recording = ""
+        # The day's own gaps: the judge counts them across days again, from the segment starts.
+        self.blocks = BlockWindows(lambda fs_hz: recording_settings(self.recording, fs_hz, config), self.geometry,
+                                   self.health.clip_level_mps2, keep_starts=True)  # fmt: skip
         self.windows: list[WindowIndicators] = []
         self.context: list[dict[str, Any]] = []
 
+    @property
+    def segment_starts(self) -> list[tuple[float, float]]:
+        return self.blocks.segment_starts
+
     def feed(self, block: Block, recording: str) -> None:
-        new_segment, gap = segment_start(self.core.settings.fs_hz if self.core is not None else None, block)
-        if new_segment:
-            if self.core is None or self.core.settings.fs_hz != block.fs_hz:
-                processing = recording_settings(recording, block.fs_hz, self.config)
-                self.core = IndicatorStream(processing, self.geometry, block.start_s, self.health.clip_level_mps2)
-            else:
-                self.core.restart(block.start_s)
-            self.segment += 1
-            self.segment_starts.append((block.start_s, block.fs_hz))
-        if gap:
-            self.gaps.add(block.start_s)
-        self.spans.add(block)
-        assert self.core is not None
-        for window in self.core.process(block.accel_mps2):
-            status = self.spans.over(window.start_s, window.end_s)
-            health = assess_window(window, self.health, status, self.gaps.count_before(window.end_s), self.geometry)
+        self.recording = recording  # named in the error of a rate the config cannot run at
+        for w in self.blocks.feed(block):
+            health = assess_window(w.window, self.health, w.status, w.gaps_last_hour, self.geometry)
             problems = {ch: [p.value for p in ps] for ch, ps in health.problems.items()}
-            self.windows.append(window)
+            self.windows.append(w.window)
             self.context.append({
-                "recording": recording, "segment": self.segment,
-                "status_0": int(status[0]), "status_1": int(status[1]), "status_2": int(status[2]),
+                "recording": recording, "segment": w.segment,
+                "status_0": int(w.status[0]), "status_1": int(w.status[1]), "status_2": int(w.status[2]),
                 "gate": health.gate.value if health.gate is not None else "",
                 "problems": json.dumps(problems, sort_keys=True) if problems else "",
-                "p_full": self.load_model.probability_full(window, self.geometry),
+                "p_full": self.load_model.probability_full(w.window, self.geometry),
             })  # fmt: skip
 
 

@@ -26,7 +26,7 @@ USER_ERRORS: frozenset[str] = frozenset(
         "bogiemon.daemon.store.StoreError",
         "bogiemon.fleet.layout.FleetError",
         "bogiemon.fleet.judge.JudgeError",
-        "bogiemon.fleet.report.ReportError",
+        "bogiemon.fleet.judged_files.ReportError",
         "bogiemon.drivers.candb.DbcError",
         "bogiemon.drivers.player.PlayError",
         "bogiemon.drivers.recording.RecordingError",

@@ -11,7 +11,7 @@ import pytest
 from bogiemon.daemon.cli.main import main
 import numpy as np
 
-from bogiemon.fleet.report import LEFT_PX, RIGHT_PX, SCORE_BOTTOM_PX, SCORE_COLOUR, SCORE_TOP_PX, STATE_COLOURS, W_PX
+from bogiemon.fleet.plot import LEFT_PX, RIGHT_PX, SCORE_BOTTOM_PX, SCORE_COLOUR, SCORE_TOP_PX, STATE_COLOURS, W_PX
 from tests.fleet.browser import count_colour, find_chromium, read_png, visit
 
 pytestmark = [

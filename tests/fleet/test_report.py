@@ -14,7 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bogiemon.fleet import svg
-from bogiemon.fleet.report import GAP_PX, LEFT_PX, MAX_IDLE_S, MAX_POINTS_PER_PANEL, RIGHT_PX, SCORE_TOP_PX, ReportError, html_id, write_report
+from bogiemon.fleet.judged_files import ReportError
+from bogiemon.fleet.plot import GAP_PX, LEFT_PX, MAX_IDLE_S, MAX_POINTS_PER_PANEL, RIGHT_PX, SCORE_TOP_PX
+from bogiemon.fleet.report import html_id, write_report
 from tests.fleet.judged_fixture import DEFAULT_FLEET, FleetShape, WagonSpec, read_wagons_json, write_judged, write_wagons_json
 
 CONFIRMED_WAGON = "31-80-4557-001"

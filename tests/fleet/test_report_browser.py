@@ -5,19 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bogiemon.fleet.report import (
-    ALARM_COLOUR,
-    LEFT_PX,
-    RIGHT_PX,
-    SCORE_BOTTOM_PX,
-    SCORE_COLOUR,
-    SCORE_TOP_PX,
-    STATE_COLOURS,
-    TREND_COLOUR,
-    W_PX,
-    html_id,
-    write_report,
-)
+from bogiemon.fleet.plot import ALARM_COLOUR, LEFT_PX, RIGHT_PX, SCORE_BOTTOM_PX, SCORE_COLOUR, SCORE_TOP_PX, STATE_COLOURS, TREND_COLOUR, W_PX
+from bogiemon.fleet.report import html_id, write_report
 from tests.fleet.browser import count_colour, find_chromium, read_png, visit
 from tests.fleet.judged_fixture import DEFAULT_FLEET, WagonSpec, write_judged
 
