@@ -1,16 +1,20 @@
 """Commissioning: learning a wagon's healthy baseline from recordings of it, per load state.
 
 Only windows the daemon would judge count (moving, enough excitation, healthy sensors in their
-configured places). With `load` "auto" each window goes to the load state the daemon estimates
-for it, and every load with enough windows is calibrated. Per load, two things are learned:
+configured places). Each load state is best commissioned from its own recordings (`--full ...
+--tare ...`, calibrate_loads); `--load auto` splits the windows with the shipped load model, a
+prior fitted on our simulator (daemon/commissioning.py says why no cluster split replaces it).
+Per load, three things are learned:
 
-THE FUSED BASELINE (decision.method "fused"): the center is the mean coupling vector of the
-wagon's healthy windows; the spread is the shipped one (config/fused_model.toml), and so are the
-levels of the window score and of the trend, raised in proportion when this wagon's own windows
-scatter more around their center than the training fleet's did (the median score over the
-calibration windows against the shipped median; never lowered):
+THE LOAD STATE (decision.load_states): the centre, robust scale and familiarity limit of the
+windows' load vector, so that with decision.load = "auto" a window goes to the nearest
+commissioned state, or is not judged when it is like none of them (daemon/commissioning.py).
 
-    levels = shipped levels x max(1, median score here / shipped median score)
+THE FUSED BASELINE (decision.method "fused"): the centre is the mean coupling vector of the
+wagon's healthy windows; the spread is the wagon's own covariance shrunk towards the shipped one;
+the levels are the shipped ones raised by how much worse the wagon's commissioning runs score out
+of sample, and the trend's by the largest out-of-sample trend (daemon/commissioning.py:
+fit_spread). Never lowered below the shipped levels.
 
 THE THRESHOLDS (decision.method "thresholds"): for each indicator the config thresholds, with d
 the deviation from the healthy median and sigma = 1.4826 * MAD (a standard deviation that ignores
@@ -24,24 +28,27 @@ daemon/rules.py's fit_threshold, which the lab's study uses too). The empirical
 terms keep heavy-tailed indicators honest: no healthy calibration window reaches the alarm level,
 and confirmation (k of n windows) lowers the false-alarm rate of CONFIRMED far below p_alarm.
 
-Both go into one config fragment for the daemon's `include` list.
+All of it goes into one config fragment for the daemon's `include` list.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.decision import INDICATOR_FIELDS
-from bogiemon.daemon.health import assess_window
-from bogiemon.daemon.models import Levels, coupling_features, shipped_models
+from bogiemon.daemon.health import StructureFit, assess_window, learn_structure, merge_structures
+from bogiemon.daemon.commissioning import fit_discriminant, fit_spread, load_signature, runs_of, split_loads
+from bogiemon.daemon.models import Levels, LoadDiscriminant, LoadSignature, coupling_features, load_features, shipped_models
 from bogiemon.daemon.rules import Threshold, fit_threshold
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.features import COUPLING_NAMES
@@ -65,12 +72,16 @@ class IndicatorCalibration:
 
 @dataclass(frozen=True)
 class FusedCalibration:
-    """The wagon's fused baseline for one load."""
+    """The wagon's fused baseline for one load (daemon/commissioning.py: fit_spread)."""
 
     center: tuple[float, ...]
     levels: Levels
     median_score: float  # of the calibration windows against their own center
-    level_factor: float  # the shipped levels were multiplied by this (>= 1)
+    level_factor: float  # the shipped window levels were multiplied by this (>= 1)
+    covariance: tuple[tuple[float, ...], ...]  # the wagon's own spread, shrunk towards the shipped one
+    shrinkage: float  # the shipped spread's weight in it
+    runs: int  # commissioning runs (stretches of consecutive windows)
+    out_of_sample_median: float | None  # each run scored against the others (None: too few runs)
 
 
 @dataclass(frozen=True)
@@ -79,6 +90,9 @@ class LoadCalibration:
     n_judged: int
     indicators: tuple[IndicatorCalibration, ...]
     fused: FusedCalibration | None  # None when the processing windows are not the fused model's
+    signature: LoadSignature | None = None  # the load state's own load vector, for load "auto"
+    # The load vectors of its windows, for the discriminant between two states (not written out).
+    load_rows: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -90,6 +104,13 @@ class CalibrationResult:
     alarm_rate: float
     loads: tuple[LoadCalibration, ...]
     skipped: dict[str, int]  # loads seen with too few windows (auto): load -> windows
+    load_note: str = ""  # how the load states were told apart (auto)
+    load_named_by_prior: bool = False  # one state, named by the shipped load model: the keeper should state it
+    # The frame structure of its three sensors the wagon showed (which inverted/swapped checks hold):
+    # in force after commissioning, so a changed structure is a sensor fault (daemon/health.py).
+    structure: StructureFit | None = None
+    # With both load states: the wagon's own line between them (daemon/commissioning.py).
+    discriminant: LoadDiscriminant | None = None
 
     @property
     def n_judged(self) -> int:
@@ -114,10 +135,42 @@ def calibrate(
     """Calibrate from recordings (CSV) of the healthy wagon; see the module docstring."""
     health = config.health_settings()
     windows: list[WindowIndicators] = []
-    for path in paths:
+    runs: list[int] = []
+    for number, path in enumerate(paths):
         recording = open_recording(path, config)
-        windows += analyze_recording(recording, config, clip_level_mps2=health.clip_level_mps2)
-    return calibrate_windows(windows, config, load, indicators, warning_rate, alarm_rate, files=tuple(str(p) for p in paths))
+        these = list(analyze_recording(recording, config, clip_level_mps2=health.clip_level_mps2))
+        windows += these
+        runs += [number] * len(these)
+    return calibrate_windows(windows, config, load, indicators, warning_rate, alarm_rate, files=tuple(str(p) for p in paths), runs=runs)
+
+
+def calibrate_loads(
+    paths_by_load: Mapping[str, Sequence[str | Path]],
+    config: BogiemonConfig,
+    indicators: Sequence[str] | None = None,
+    warning_rate: float = 1e-2,
+    alarm_rate: float = 1e-4,
+) -> CalibrationResult:
+    """Commission each load state from its own recordings ({"full": [...], "tare": [...]}): the
+    way that needs no model of the wagon to tell its loads apart (daemon/commissioning.py)."""
+    if not paths_by_load or set(paths_by_load) - set(LOADS):
+        raise CalibrationError(f"recordings per load state: use {' and '.join(LOADS)}; got {sorted(paths_by_load)}")
+    return combine_loads([calibrate(paths, config, load, indicators, warning_rate, alarm_rate) for load, paths in sorted(paths_by_load.items())], config)
+
+
+def combine_loads(parts: Sequence[CalibrationResult], config: BogiemonConfig) -> CalibrationResult:
+    """One commissioning from each load state's own (one load each): the structure checks in force
+    are those that held in every load, and with both loads the line between them."""
+    loads = [c.load for r in parts for c in r.loads]
+    if len(set(loads)) != len(loads):
+        raise CalibrationError(f"each load state once: got {loads}")
+    first = parts[0]
+    return CalibrationResult(
+        "per load", tuple(f for r in parts for f in r.files), sum(r.n_windows for r in parts), first.warning_rate, first.alarm_rate,
+        tuple(c for r in parts for c in r.loads), {}, "each load state from its own recordings",
+        structure=merge_structures([r.structure for r in parts if r.structure is not None]),
+        discriminant=_discriminant([c for r in parts for c in r.loads], config),
+    )  # fmt: skip
 
 
 def calibrate_windows(
@@ -128,25 +181,36 @@ def calibrate_windows(
     warning_rate: float = 1e-2,
     alarm_rate: float = 1e-4,
     files: tuple[str, ...] = (),
+    runs: Sequence[int] | None = None,
 ) -> CalibrationResult:
-    """Calibrate from windows of the healthy wagon (the detection core's, in time order or not)."""
+    """Calibrate from windows of the healthy wagon (the detection core's, in time order or not).
+
+    runs: each window's run (e.g. its recording's number), for the out-of-sample check of the
+    spread; None: runs are stretches of consecutive windows.
+    """
+    windows = list(windows)
+    run_of = {id(w): r for w, r in zip(windows, runs, strict=True)} if runs is not None else None
     if load not in (*LOADS, "auto"):
         raise CalibrationError(f"load state '{load}': use full, tare or auto")
     if not 0 < alarm_rate <= warning_rate < 1:
         raise CalibrationError(f"need 0 < alarm rate ({alarm_rate}) <= warning rate ({warning_rate}) < 1")
     health = config.health_settings()
     geometry = config.bogie_geometry()
-    load_model = config.load_model() if load == "auto" else None
     by_load: dict[str, list[WindowIndicators]] = {ld: [] for ld in LOADS}
     n_windows = 0
+    judgeable = []
     for window in windows:
         n_windows += 1
-        if not assess_window(window, health, geometry=geometry).judgeable:
-            continue
-        if load_model is not None:
-            by_load["full" if load_model.probability_full(window, geometry) >= 0.5 else "tare"].append(window)
-        else:
-            by_load[load].append(window)
+        if assess_window(window, health, geometry=geometry).judgeable:
+            judgeable.append(window)
+    split = None
+    if load == "auto":
+        # The wagon's own load states, told apart by its own windows (daemon/commissioning.py).
+        split = split_loads(judgeable, geometry, config.load_model())
+        for ld, ws in split.windows.items():
+            by_load[ld] = ws
+    else:
+        by_load[load] = judgeable
     wanted = LOADS if load == "auto" else (load,)
     results, skipped = [], {}
     for ld in wanted:
@@ -165,13 +229,25 @@ def calibrate_windows(
         if not names or unknown:
             raise CalibrationError(f"indicators to calibrate must be among {', '.join(INDICATOR_FIELDS)}; got {names}")
         thresholds = tuple(_indicator(n, [float(getattr(w, n)) for w in judged], warning_rate, alarm_rate) for n in names)
-        results.append(LoadCalibration(ld, len(judged), thresholds, _fused(judged, config, ld)))
+        rows = np.array([v for w in judged if (v := load_features(w, geometry)) is not None])
+        results.append(LoadCalibration(ld, len(judged), thresholds, _fused(judged, config, ld, run_of), load_signature(ld, judged, geometry), rows))
     if not results:
         counts = ", ".join(f"{ld} {len(by_load[ld])}" for ld in LOADS)
         raise CalibrationError(
             f"no load state had {MIN_WINDOWS} judged windows of {n_windows} ({counts}): record longer runs of the healthy wagon"
         )
-    return CalibrationResult(load, files, n_windows, warning_rate, alarm_rate, tuple(results), skipped)
+    return CalibrationResult(
+        load, files, n_windows, warning_rate, alarm_rate, tuple(results), skipped,
+        split.note if split is not None else "", split.by_prior if split is not None else False,
+        learn_structure(judgeable, geometry), _discriminant(results, config),
+    )  # fmt: skip
+
+
+def _discriminant(loads: Sequence[LoadCalibration], config: BogiemonConfig) -> LoadDiscriminant | None:
+    rows = {c.load: c.load_rows for c in loads if c.load_rows is not None and len(c.load_rows)}
+    if set(rows) != {"full", "tare"}:
+        return None
+    return fit_discriminant(rows["full"], rows["tare"], config.processing.window_s / config.processing.hop_s)
 
 
 def _indicator(name: str, values: list[float], warning_rate: float, alarm_rate: float) -> IndicatorCalibration:
@@ -179,20 +255,27 @@ def _indicator(name: str, values: list[float], warning_rate: float, alarm_rate: 
     return IndicatorCalibration(name, fit.center, fit.robust_sigma, fit.max_deviation, Threshold(warning=fit.warning, alarm=fit.alarm, center=fit.center))
 
 
-def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: str) -> FusedCalibration | None:
-    model = shipped_models().fused[load]
+def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: str, run_of: Mapping[int, int] | None) -> FusedCalibration | None:
+    model = shipped_models(config.decision.models_dir).fused[load]
     if not model.fits(config.processing_settings()):
         return None
     geometry = config.bogie_geometry()
-    rows = [x for x in (coupling_features(w, geometry) for w in windows) if x is not None]
-    if len(rows) < MIN_WINDOWS:
+    kept = [(w, x) for w in windows if (x := coupling_features(w, geometry)) is not None]
+    if len(kept) < MIN_WINDOWS:
         return None
-    x = np.array(rows)
-    center = x.mean(axis=0)
-    baseline = model.calibrated(center, model.levels)
-    median_score = float(np.median([baseline.score(row) for row in x]))
-    factor = max(1.0, median_score / model.calibration_median_score)
-    return FusedCalibration(tuple(float(v) for v in center), model.levels.scaled(factor), median_score, factor)
+    rows = np.array([x for _, x in kept])
+    if run_of is not None:
+        groups: dict[int, list[int]] = {}
+        for i, (w, _) in enumerate(kept):
+            groups.setdefault(run_of[id(w)], []).append(i)
+        runs = [groups[r] for r in sorted(groups)]
+    else:
+        runs = runs_of([w for w, _ in kept], config.processing.hop_s)
+    fit = fit_spread(rows, runs, model, config.processing.hop_s)
+    return FusedCalibration(
+        tuple(float(v) for v in fit.center), fit.levels, fit.median_score, fit.level_factor,
+        tuple(tuple(float(v) for v in row) for row in fit.covariance), fit.shrinkage, fit.runs, fit.out_of_sample_median,
+    )  # fmt: skip
 
 
 def fragment(result: CalibrationResult) -> str:
@@ -206,6 +289,12 @@ def fragment(result: CalibrationResult) -> str:
         + f"); per-window false-alarm targets of the thresholds: warning {result.warning_rate:g}, alarm {result.alarm_rate:g}.",
         "# decision.fused.<load>: this wagon's healthy center of the coupling vector for the fused score and its levels;",
         "# decision.thresholds.<load>: the thresholds of the indicators (daemon/calibrate.py states both rules).",
+        "# decision.fused.<load>.covariance: this wagon's own spread of the couplings (daemon/commissioning.py);",
+        "# decision.load_states.<load>: the load states it was commissioned in, for decision.load = \"auto\";",
+        "# decision.load_discriminant: with both, this wagon's own line between them (near it: not judged).",
+        "# health.layout_checks: the checks of the sensors' places and signs that held on every healthy window",
+        "# (none held: none in force, so no SWAPPED or INVERTED is ever reported for this wagon).",
+        *([f"# Load states: {result.load_note}."] if result.load_note else []),
         "# Include it from the daemon's config: include = [\"<this file>\"]",
     ]
     thresholds = {
@@ -216,9 +305,23 @@ def fragment(result: CalibrationResult) -> str:
         c.load: {
             "features": list(COUPLING_NAMES), "center": list(c.fused.center), "warning": c.fused.levels.warning, "alarm": c.fused.levels.alarm,
             "trend_warning": c.fused.levels.trend_warning, "trend_alarm": c.fused.levels.trend_alarm, "windows": c.n_judged,
+            **({"covariance": [list(row) for row in c.fused.covariance]} if c.fused.shrinkage < 1.0 else {}),
         }  # fmt: skip
         for c in result.loads
         if c.fused is not None
     }
-    body = {"decision": {"thresholds": thresholds, **({"fused": fused} if fused else {})}}
+    load_states = {
+        c.load: {"center": [float(v) for v in c.signature.center], "scale": [float(v) for v in c.signature.scale],
+                 "limit": c.signature.limit, "windows": c.n_judged}  # fmt: skip
+        for c in result.loads
+        if c.signature is not None
+    }
+    body: dict[str, Any] = {"decision": {"thresholds": thresholds, **({"fused": fused} if fused else {}), **({"load_states": load_states} if load_states else {})}}
+    if result.discriminant is not None:
+        d = result.discriminant
+        body["decision"]["load_discriminant"] = {
+            "weights": [float(v) for v in d.weights], "offset": d.offset, "margin": d.margin, "separation": d.separation,
+        }  # fmt: skip
+    if result.structure is not None:
+        body["health"] = result.structure.health_fields()
     return "\n".join(header) + "\n\n" + tomlout.dumps(body)

@@ -19,6 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from bogiemon.daemon.config_sections import (  # the sections, importable from here as before
@@ -46,7 +47,7 @@ from bogiemon.daemon.config_sections import (  # the sections, importable from h
 from bogiemon.daemon.decision import DecisionSettings, FusedSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
 from bogiemon.daemon.logs import get_logger
-from bogiemon.daemon.models import Baseline, Levels, LoadModel, shipped_models
+from bogiemon.daemon.models import Baseline, Levels, LoadDiscriminant, LoadModel, LoadSignature, shipped_models
 from bogiemon.detection import BogieGeometry, ProcessingSettings
 
 if TYPE_CHECKING:
@@ -162,7 +163,8 @@ class BogiemonConfig(Section):
 
     def health_settings(self) -> HealthSettings:
         h = self.health
-        return HealthSettings(**h.model_dump(exclude={"clear_after_windows"}))
+        fields = h.model_dump(exclude={"clear_after_windows"})
+        return HealthSettings(**{**fields, "layout_checks": tuple(h.layout_checks)})
 
     def decision_settings(self) -> DecisionSettings:
         d = self.decision
@@ -174,21 +176,22 @@ class BogiemonConfig(Section):
 
     def fused_baselines(self) -> dict[str, Baseline]:
         """Per load: the wagon's calibrated baseline if the config has one, else the fleet's."""
-        models = shipped_models().fused
+        models = shipped_models(self.decision.models_dir).fused
         out = {}
         for load, model in models.items():
             own = self.decision.fused.get(load)  # type: ignore[call-overload]
-            out[load] = model.calibrated(own.center, Levels(own.warning, own.alarm, own.trend_warning, own.trend_alarm)) if own is not None else model.population()
+            levels = Levels(own.warning, own.alarm, own.trend_warning, own.trend_alarm) if own is not None else None
+            out[load] = model.calibrated(own.center, levels, own.covariance or None) if own is not None and levels is not None else model.population()
         return out
 
     def fused_settings(self) -> FusedSettings:
-        return FusedSettings(self.fused_baselines(), shipped_models().signatures, self.bogie_geometry(), self.processing.hop_s)
+        return FusedSettings(self.fused_baselines(), shipped_models(self.decision.models_dir).signatures, self.bogie_geometry(), self.processing.hop_s)
 
     def check_models(self) -> None:
         """The fused method needs the windows its shipped model was fitted on; ConfigError if not."""
         if self.decision.method != "fused":
             return
-        model = shipped_models().fused["full"]
+        model = shipped_models(self.decision.models_dir).fused["full"]
         if not model.fits(self.processing_settings()):
             raise ConfigError(
                 f"decision.method 'fused': its model (config/fused_model.toml) was fitted on windows of "
@@ -197,7 +200,21 @@ class BogiemonConfig(Section):
             )
 
     def load_model(self) -> LoadModel:
-        return shipped_models().load
+        return shipped_models(self.decision.models_dir).load
+
+    def load_signatures(self) -> tuple[LoadSignature, ...]:
+        """The load states this wagon was commissioned in (empty: the shipped load model decides)."""
+        return tuple(
+            LoadSignature(load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit)
+            for load, st in sorted(self.decision.load_states.items())
+        )
+
+    def load_discriminant(self) -> LoadDiscriminant | None:
+        """The wagon's own line between its two commissioned load states, if it has one."""
+        d = self.decision.load_discriminant
+        if d is None:
+            return None
+        return LoadDiscriminant(np.asarray(d.weights, dtype=np.float64), d.offset, d.margin, d.separation)
 
     def bogie_geometry(self) -> BogieGeometry:
         return BogieGeometry(
@@ -235,6 +252,8 @@ class BogiemonConfig(Section):
             config_hash=self.digest(),
             sensor_clear_after_windows=self.health.clear_after_windows,
             load_model=self.load_model() if load == "auto" else None,
+            load_states=self.load_signatures() if load == "auto" else (),
+            load_discriminant=self.load_discriminant() if load == "auto" else None,
         )
 
     def recorder_settings(self) -> RecorderSettings | None:

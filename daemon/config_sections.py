@@ -6,11 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, field_validator, model_validator
 
 from bogiemon.daemon.decision import INDICATOR_FIELDS
 from bogiemon.detection import Corner, ProcessingSettings
-from bogiemon.detection.features import COUPLING_NAMES
+from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES
 
 MAX_FS_HZ = 10_000.0  # no accelerometer feed of a bogie runs faster
 
@@ -117,6 +118,9 @@ class FusedBaselineConfig(Section):
     trend_warning: float = Field(gt=0)
     trend_alarm: float = Field(gt=0)
     windows: int = Field(0, ge=0, le=2**31)  # the calibration windows it was learned from (for people)
+    # The wagon's own spread of the coupling vector, learned at commissioning (shrunk towards the
+    # shipped one); empty: the shipped spread of config/fused_model.toml.
+    covariance: list[list[float]] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _consistent(self) -> FusedBaselineConfig:
@@ -124,10 +128,61 @@ class FusedBaselineConfig(Section):
             raise ValueError(f"features {self.features} are not this bogiemon's {list(COUPLING_NAMES)}: calibrate again")
         if len(self.center) != len(COUPLING_NAMES):
             raise ValueError(f"center needs {len(COUPLING_NAMES)} values, got {len(self.center)}")
+        if self.covariance:
+            n = len(COUPLING_NAMES)
+            m = np.array(self.covariance, dtype=np.float64) if all(len(r) == n for r in self.covariance) else np.zeros((0, 0))
+            if m.shape != (n, n) or not np.all(np.isfinite(m)) or not np.allclose(m, m.T, rtol=1e-9, atol=1e-12):
+                raise ValueError(f"covariance must be a finite, symmetric {n} x {n} matrix: calibrate again")
+            try:
+                np.linalg.cholesky(m)
+            except np.linalg.LinAlgError:
+                raise ValueError("covariance is not positive definite: calibrate again") from None
         if self.warning > self.alarm or self.trend_warning > self.trend_alarm:
             raise ValueError(
                 f"warning levels ({self.warning}, trend {self.trend_warning}) must not exceed the alarm levels ({self.alarm}, trend {self.trend_alarm})"
             )
+        return self
+
+
+class LoadStateConfig(Section):
+    """A load state the wagon was commissioned in: the centre and spread of its windows' load
+    vector (detection/features.py LOAD_FEATURES: each mode's log power share per band), and the
+    distance (RMS of the z-scores) beyond which a window is like nothing seen then. Written by
+    `bogiemon calibrate`."""
+
+    center: list[float]
+    scale: list[float]
+    limit: float = Field(gt=0)
+    windows: int = Field(0, ge=0, le=2**31)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> LoadStateConfig:
+        n = len(LOAD_NAMES)
+        if len(self.center) != n or len(self.scale) != n:
+            raise ValueError(f"center and scale need {n} values each (the load features), got {len(self.center)} and {len(self.scale)}")
+        if not all(np.isfinite(self.center)) or not all(v > 0 and np.isfinite(v) for v in self.scale):
+            raise ValueError("center must be finite and scale finite and positive: calibrate again")
+        return self
+
+
+class LoadDiscriminantConfig(Section):
+    """The wagon's own line between its full and tare states (daemon/commissioning.py:
+    fit_discriminant): value = weights . load vector + offset, full at or above margin, tare at or
+    below -margin, between them not judged. Written by `bogiemon calibrate` with both loads."""
+
+    weights: list[float]
+    offset: float
+    margin: float = Field(gt=0)
+    separation: float = Field(gt=0)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> LoadDiscriminantConfig:
+        if len(self.weights) != len(LOAD_NAMES):
+            raise ValueError(f"weights need {len(LOAD_NAMES)} values (the load features), got {len(self.weights)}")
+        if not all(np.isfinite([*self.weights, self.offset, self.margin, self.separation])):
+            raise ValueError("weights, offset, margin and separation must be finite: calibrate again")
+        if self.separation < 2 * self.margin:
+            raise ValueError(f"separation {self.separation:g} is less than twice the margin {self.margin:g}: the states would overlap")
         return self
 
 
@@ -141,6 +196,16 @@ class DecisionConfig(Section):
     # The wagon's calibrated baselines (none shipped: without one a load is judged against the
     # fleet's population baseline, config/fused_model.toml).
     fused: dict[LoadState, FusedBaselineConfig] = Field(default_factory=dict)
+    # The load states the wagon was commissioned in (written by `bogiemon calibrate`). With load
+    # "auto" a window goes to the nearest of them, or is not judged when it is like none of them;
+    # without any, the shipped load model decides (config/load_model.toml, a prior).
+    load_states: dict[LoadState, LoadStateConfig] = Field(default_factory=dict)
+    # With both states: which side of the wagon's own discriminant a window lies (written by
+    # `bogiemon calibrate`; absent: the nearest state).
+    load_discriminant: LoadDiscriminantConfig | None = None
+    # The folder of the priors (load_model.toml, fused_model.toml, fault_signatures.toml); empty:
+    # the ones shipped in bogiemon's config folder, fitted on its simulator.
+    models_dir: str = ""
 
     @field_validator("thresholds", mode="before")
     @classmethod
@@ -165,6 +230,7 @@ class DecisionConfig(Section):
 class HealthConfig(Section):
     standstill_rms_mps2: float = Field(0.05, ge=0)
     min_excitation_rms_mps2: float = Field(0.3, ge=0)
+    min_hop_rms_ratio: float = Field(0.25, ge=0, lt=1)
     flat_rms_mps2: float = Field(0.02, ge=0)
     stuck_repeat_fraction: float = Field(0.2, gt=0, le=1)
     stuck_run_s: float = Field(1.0, gt=0)
@@ -172,13 +238,25 @@ class HealthConfig(Section):
     clipped_fraction: float = Field(1e-4, gt=0, le=1)
     noise_ratio: float = Field(2.0, gt=1)
     noise_low_band_ratio: float = Field(3.2, gt=1)
+    noise_coherence: float = Field(0.75, ge=0, lt=1)
     max_rms_mps2: float = Field(50.0, gt=0)
     max_gaps_per_hour: int = Field(6, ge=0, le=1_000_000)
     gravity_mps2: float = Field(9.81, gt=0)
     structure_checks: bool = True
-    layout_low_coherence: float = Field(-0.2, ge=-1, le=0)
-    layout_diagonal_coherence: float = Field(-0.3, ge=-1, le=0)
+    # Written by commissioning (daemon/health.py: learn_structure); none on an uncommissioned wagon.
+    layout_checks: list[Literal["low", "diagonal", "other", "quadrature"]] = Field(default_factory=list)
+    layout_low_coherence: float = Field(-0.2, ge=-1, le=1)
+    layout_diagonal_coherence: float = Field(-0.3, ge=-1, le=1)
+    layout_other_margin: float = Field(0.0, ge=-2, le=2)
+    layout_quadrature_margin: float = Field(0.0, ge=-1, le=1)
     clear_after_windows: int = Field(3, ge=1, le=100_000)
+
+    @field_validator("layout_checks")
+    @classmethod
+    def _each_check_once(cls, checks: list[str]) -> list[str]:
+        if len(set(checks)) != len(checks):
+            raise ValueError(f"each layout check at most once, got {checks}")
+        return checks
 
 
 class StateConfig(Section):

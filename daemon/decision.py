@@ -68,8 +68,9 @@ class Mode(enum.Enum):
 
 @dataclass(frozen=True)
 class FusedSettings:
-    """What the fused score and the diagnosis need: per load the baseline in force and the
-    fault signatures, and the sensors' geometry for the coupling vector."""
+    """What the fused score and the diagnosis need: per load the baseline in force, and the
+    sensors' geometry for the coupling vector. `signatures` is the old diagnosis's shipped fault
+    signatures: no longer read (daemon/diagnosis.py works from the geometry), kept for callers."""
 
     baselines: Mapping[str, Baseline]
     signatures: Mapping[str, SignatureSet]
@@ -272,17 +273,17 @@ class Decider:
         """The diagnosis from the alarm windows of the current history (NO_EVIDENCE without them)."""
         fused = self.settings.fused
         shifts = [v for v in self.state.recent_shifts if v is not None]
-        if fused is None or load not in fused.signatures or not shifts:
+        if fused is None or load not in fused.baselines or not shifts:
             return NO_EVIDENCE
-        return diagnose(shifts, fused.signatures[load])
+        return diagnose(shifts, fused.baselines[load], load)
 
     def trend_diagnosis(self, load: str) -> Diagnosis:
         """The diagnosis from the trend's mean shift: many windows' evidence in one vector."""
         fused = self.settings.fused
         mean = self.state.trend_mean.get(load)
-        if fused is None or load not in fused.signatures or not mean:
+        if fused is None or load not in fused.baselines or not mean:
             return NO_EVIDENCE
-        return diagnose([mean], fused.signatures[load])
+        return diagnose([mean], fused.baselines[load], load, trend=True)
 
     def _limits(self, load: str) -> dict[str, dict[str, float]]:
         if self.settings.method == "fused":

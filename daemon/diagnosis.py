@@ -1,41 +1,115 @@
-"""Diagnosis of a confirmed fault: the likely corner and kind, with a confidence, or "unknown".
+"""Diagnosis of a confirmed fault from the bogie's geometry: the corner, or "unknown".
 
-A fault at one corner couples the frame's modes in a pattern set by where the corner is: the
-sign of the pitch-roll coupling follows the product of the corner's x and y (the diagonal pair
-LL/TR against LR/TL), the bounce-roll coupling its side, and the band where each appears how the
-corner's damper sticks or slides compared with the other three. A stiffer corner and a softer one
-at the diagonally opposite corner share their signs, so the bands decide between them.
+No pattern fitted on a model: the corner follows from the signs of the coupling shift that
+confirmed the alarm, read where rigid-body mechanics fixes them.
 
-The judgement compares the whitened coupling shift of the windows that confirmed the alarm (the
-mean of their z = L (x - center)) with each shipped signature, the mean shift of one fault class
-at one corner on the training fleet, as unit vectors: the cosine c_j. A softmax over the
-signatures, p_j = exp(kappa c_j) / sum_k exp(kappa c_k), gives each corner's and each kind's
-probability as the sum over its signatures. Below the shipped minimum confidence the answer is
-"unknown": a shift that matches no signature well, or two corners about equally.
+THE SIGN RELATION. A corner at (x_c, y_c) of the frame (x towards the leading axle, y towards the
+left rail: detection/kinematics.py) whose vertical stiffness changes by dK adds dK g g^T to the
+frame's stiffness in (bounce, pitch, roll), g = (1, x_c, y_c): a pitch-roll term dK x_c y_c and a
+bounce-roll term dK y_c, nothing else off the diagonal. Well below the frame's own pitch and roll
+modes the frame's response is its compliance times what drives it; to first order the change of
+compliance is -K^-1 dK g g^T K^-1, so a softer corner (dK < 0) moves more, and with it the frame
+pitches and rolls towards it: the modal accelerations acquire correlations of the signs
+
+    sign(c_pr shift) = sign(x_c y_c),   sign(c_br shift) = sign(y_c)        (a softer corner)
+
+and both flipped for a stiffer one. Above a frame mode the response's phase turns by 180 degrees
+and so do the signs; at a mode the coupling is in quadrature and its real part says nothing.
+Healthy, the frame is symmetric and both shifts are zero in expectation.
+
+What it cannot tell. Mirroring the frame across the track (y -> -y) maps a corner onto its
+neighbour on the same axle and flips both couplings (each holds roll once), so to first order a
+corner that got softer gives exactly the shift of its neighbour across the track getting stiffer
+by as much. The pitch-roll term adds a second catch: when the frame's pitch and roll stiffness
+come from the primary springs alone (a Y25 at full load, its dampers stuck), its first-order part
+cancels (the change only feeds the frame's warp, which rigid-body pitch and roll do not see) and
+the second-order part, of sign x_c y_c whatever the sign of dK, remains. The couplings judged
+here therefore fix the corner only up to the sign of the change; the corner named is the one
+that got softer in effect: a broken or sagging spring, or a damper that grips less and slides
+where the others stick (friction dominates the corner's effective stiffness whenever the dampers
+stick, and on a Y25 a broken front coil raises the Lenoir damper's grip: that corner can read as
+stiffer). The kind is therefore "unknown": these couplings tell neither the sign of dK nor a spring
+from a damper.
+
+THE BANDS (SIGN_BANDS, per load state): where the relation holds, below the frame's pitch and roll
+modes in the friction regime the load puts the dampers in, and away from any band that holds one
+of those modes. The frame pitches and rolls near 38 Hz at full load and 36 Hz in tare with its
+dampers stuck (Kz + k_stick), near 13 Hz and 8-9 Hz with them sliding (docs/simulator.md). At full
+load the dampers stick most of the time (Fs is a sixth of the corner load): 4-8 and 16-32 Hz are
+read, 8-16 and 32-64 Hz (a mode each) are not. In tare only 4-8 Hz lies below both regimes' modes;
+16-32 Hz lies between them, and there the shifts of the simulator's tare faults take the flipped
+sign of a frame above its modes. 2-4 Hz is never read: there the wheelbase delay of the rails'
+input couples bounce and pitch with a sign that flips with the direction of travel, and it leaks
+into both couplings. `python -m bogiemon.lab.robust.diagnosis_check --linear` gives the signs of
+the linearised wagon band by band (both regimes, softer and stiffer), `--shifts` those of the
+simulated faults, and without either it measures the rule on simulated fleets.
+
+THE EVIDENCE. The mean raw shift d = mean(x - center) of the windows that confirmed (x - center =
+L^-1 z from their whitened shifts z), or the trend's mean shift. Its uncertainty is the healthy
+spread of the baseline, covariance C = (L^T L)^-1, which averaging a few consecutive, overlapping
+windows does not reduce (the healthy wagon's offset moves with track and speed, not from window to
+window), plus the scatter of the confirming windows' own shifts over their number; the trend's
+mean averages half an hour of running, and its healthy spread is C times the ratio of the trend's
+alarm level to the window score's (both set on the same healthy fleet). Per coupling (pitch-roll,
+bounce-roll), the bands' shifts in units of their healthy spread are summed, and the sum's
+standard score T (over its standard deviation, from the same covariance: the bands are
+correlated) says how clear its sign is. A corner is named only when both |T| reach MIN_SCORE and
+no read band contradicts its coupling's sign by more than CONTRADICTION standard deviations;
+otherwise it is "unknown".
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.daemon.models import KINDS, UNKNOWN, SignatureSet
+from bogiemon.daemon.models import UNKNOWN, Baseline
+from bogiemon.detection.features import BOUNCE, COUPLING_FEATURES, PITCH, band_label
+from bogiemon.detection.kinematics import Corner
 
-CORNER_NAMES = ("leading-left", "leading-right", "trailing-left", "trailing-right")
+# The bands (detection.spectra.BANDS_HZ indices) where the sign relation is read, per load state
+# (the module docstring says why these).
+SIGN_BANDS: Mapping[str, tuple[int, ...]] = {"full": (3, 5), "tare": (3,)}
+# A sign is clear at this standard score: healthy scatter of the stated spread reads a sign wrong
+# with probability 0.6 % (the one-sided normal tail), both of a corner's at most 1.2 %, a quarter
+# of the 5 % of wrong corners issue 16 allows, the rest left for the physics' own exceptions.
+MIN_SCORE = 2.5
+# A read band whose shift lies this many of its standard deviations against its coupling's sign
+# contradicts it: the bands disagree and the corner is unknown.
+CONTRADICTION = 1.0
 
 
 @dataclass(frozen=True)
 class Diagnosis:
-    corner: str  # a corner's name or "unknown"
-    kind: str  # "spring-softer", "spring-stiffer", "friction" or "unknown"
-    corner_confidence: float  # the probability of the most likely corner
+    """What the couplings say about a confirmed fault (an event's "diagnosis").
+
+    corner: the corner that got softer in effect (module docstring), or "unknown".
+    kind: always "unknown" from these couplings (module docstring); the field stays for the schema.
+    corner_confidence: the probability that both signs were read right, Phi(|T_pr|) Phi(|T_br|)
+        with Phi the standard normal distribution: the chance that healthy scatter of the stated
+        spread alone would not flip either sign. It is of the likeliest reading (best_match) also
+        when the corner is unknown (bands that disagree can leave it high), assumes the corner
+        softened, and is 0 without evidence.
+    kind_confidence: 0.0 (no kind is told).
+    best_match: the statistic in words, e.g. "pitch-roll +4.1, bounce-roll +3.2 sd at 4-8, 16-32
+        Hz: leading-left if softer" ("" without evidence).
+    cosine: the agreement of the read bands with the named (or, if unknown, the likeliest)
+        corner's sign pattern: the cosine between the bands' standard scores and those signs,
+        1 when every band has the predicted sign, below 0 when most disagree.
+    windows: how many windows' shifts were averaged (1 for the trend's mean).
+    """
+
+    corner: str
+    kind: str
+    corner_confidence: float
     kind_confidence: float
-    best_match: str  # the label of the closest signature
-    cosine: float  # its cosine similarity
-    windows: int  # how many windows' shifts were averaged
+    best_match: str
+    cosine: float
+    windows: int
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -52,32 +126,101 @@ class Diagnosis:
 NO_EVIDENCE = Diagnosis(UNKNOWN, UNKNOWN, 0.0, 0.0, "", 0.0, 0)
 
 
-def diagnose(shifts: Sequence[Sequence[float]], signatures: SignatureSet) -> Diagnosis:
-    """The diagnosis of the mean of some windows' whitened coupling shifts."""
-    if not shifts:
-        return NO_EVIDENCE
-    mean = np.mean(np.asarray(shifts, dtype=np.float64), axis=0)
-    norm = float(np.linalg.norm(mean))
-    if not np.isfinite(norm) or norm == 0.0:
-        return NO_EVIDENCE
-    return _classify(mean / norm, signatures, len(shifts))
+def softer_signs(corner: Corner) -> tuple[int, int]:
+    """The signs (pitch-roll, bounce-roll) of the coupling shift of a corner that got softer."""
+    return corner.x_sign * corner.y_sign, corner.y_sign
 
 
-def _classify(unit: NDArray[np.float64], signatures: SignatureSet, windows: int) -> Diagnosis:
-    cosines = np.array([s.direction @ unit for s in signatures.signatures])
-    logits = signatures.sharpness * (cosines - cosines.max())
-    p = np.exp(logits) / np.exp(logits).sum()
-    corner_p = {c: float(sum(pj for pj, s in zip(p, signatures.signatures, strict=True) if s.corner == c)) for c in CORNER_NAMES}
-    kind_p = {k: float(sum(pj for pj, s in zip(p, signatures.signatures, strict=True) if s.kind == k)) for k in KINDS}
-    corner, corner_conf = max(corner_p.items(), key=lambda kv: kv[1])
-    kind, kind_conf = max(kind_p.items(), key=lambda kv: kv[1])
-    best = int(np.argmax(cosines))
+def corner_of(pr_sign: int, br_sign: int) -> Corner:
+    """The corner whose softening gives these signs of the pitch-roll and bounce-roll shifts."""
+    return next(c for c in Corner if softer_signs(c) == (pr_sign, br_sign))
+
+
+@dataclass(frozen=True)
+class SignEvidence:
+    """The sign statistics of one coupling shift: per coupling its standard score T and the read
+    bands' own standard scores (in SIGN_BANDS order)."""
+
+    bands: tuple[int, ...]
+    score_pr: float
+    score_br: float
+    band_scores_pr: tuple[float, ...]
+    band_scores_br: tuple[float, ...]
+
+
+def sign_evidence(
+    shift: NDArray[np.float64], error_covariance: NDArray[np.float64], healthy_covariance: NDArray[np.float64], bands: Sequence[int]
+) -> SignEvidence:
+    """The standard scores of a raw coupling shift (COUPLING_FEATURES order) in the given bands.
+
+    error_covariance: the shift's uncertainty; healthy_covariance: the baseline's spread, whose
+    standard deviations weigh the bands (each band's shift counts in units of its healthy spread).
+    """
+    scale = np.sqrt(np.diag(healthy_covariance))
+    sd = np.sqrt(np.diag(error_covariance))
+    out: dict[int, tuple[float, tuple[float, ...]]] = {}
+    for mode in (PITCH, BOUNCE):
+        index = [k for k, (_, i, j, b) in enumerate(COUPLING_FEATURES) if i == mode and b in bands]
+        w = np.zeros(shift.size)
+        w[index] = 1.0 / scale[index]
+        spread = math.sqrt(float(w @ error_covariance @ w))
+        out[mode] = (float(w @ shift) / spread, tuple(float(shift[k] / sd[k]) for k in index))
+    return SignEvidence(tuple(bands), out[PITCH][0], out[BOUNCE][0], out[PITCH][1], out[BOUNCE][1])
+
+
+def _phi(t: float) -> float:
+    return 0.5 * (1.0 + math.erf(t / math.sqrt(2.0)))
+
+
+def judge_signs(evidence: SignEvidence, windows: int) -> Diagnosis:
+    """The corner from sign evidence, or unknown (module docstring: MIN_SCORE, CONTRADICTION)."""
+    t_pr, t_br = evidence.score_pr, evidence.score_br
+    pr_sign, br_sign = (1 if t_pr >= 0 else -1), (1 if t_br >= 0 else -1)
+    likeliest = corner_of(pr_sign, br_sign)
+    scores = np.array(evidence.band_scores_pr + evidence.band_scores_br)
+    predicted = np.array([pr_sign] * len(evidence.band_scores_pr) + [br_sign] * len(evidence.band_scores_br), dtype=np.float64)
+    norm = float(np.linalg.norm(scores))
+    cosine = float(scores @ predicted) / (norm * math.sqrt(predicted.size)) if norm > 0 else 0.0
+    against = scores * predicted
+    clear = min(abs(t_pr), abs(t_br)) >= MIN_SCORE and bool(np.all(against > -CONTRADICTION))
+    bands = ", ".join(band_label(b).removesuffix(" Hz") for b in evidence.bands)
+    described = f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz: {likeliest.value} if softer"
     return Diagnosis(
-        corner=corner if corner_conf >= signatures.min_confidence else UNKNOWN,
-        kind=kind if kind_conf >= signatures.min_confidence else UNKNOWN,
-        corner_confidence=corner_conf,
-        kind_confidence=kind_conf,
-        best_match=signatures.signatures[best].label,
-        cosine=float(cosines[best]),
+        corner=likeliest.value if clear else UNKNOWN,
+        kind=UNKNOWN,
+        corner_confidence=_phi(abs(t_pr)) * _phi(abs(t_br)),
+        kind_confidence=0.0,
+        best_match=described,
+        cosine=cosine,
         windows=windows,
     )
+
+
+def raw_shift(baseline: Baseline, whitened: NDArray[np.float64]) -> NDArray[np.float64]:
+    """x - center from z = L (x - center)."""
+    return np.linalg.solve(baseline.whitening, whitened)
+
+
+def healthy_covariance(baseline: Baseline) -> NDArray[np.float64]:
+    """The baseline's spread of x around its center: (L^T L)^-1."""
+    inverse = np.linalg.inv(baseline.whitening)
+    return inverse @ inverse.T
+
+
+def diagnose(shifts: Sequence[Sequence[float]], baseline: Baseline, load: str, trend: bool = False) -> Diagnosis:
+    """The diagnosis from whitened coupling shifts z = L (x - center) of `baseline`.
+
+    shifts: the confirming windows' shifts, or (trend=True) the one mean shift of the trend.
+    load: the load state they were judged in, which chooses the bands (SIGN_BANDS).
+    """
+    bands = SIGN_BANDS.get(load)
+    z = np.asarray(shifts, dtype=np.float64)
+    if bands is None or z.ndim != 2 or z.shape[0] == 0 or z.shape[1] != len(COUPLING_FEATURES) or not np.all(np.isfinite(z)):
+        return NO_EVIDENCE
+    raw = np.array([raw_shift(baseline, row) for row in z])
+    healthy = healthy_covariance(baseline)
+    if trend:
+        error = healthy * (baseline.levels.trend_alarm / baseline.levels.alarm)
+    else:
+        error = healthy + (np.cov(raw, rowvar=False) / raw.shape[0] if raw.shape[0] > 1 else 0.0)
+    return judge_signs(sign_evidence(raw.mean(axis=0), error, healthy, bands), raw.shape[0])

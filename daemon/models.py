@@ -2,7 +2,10 @@
 
     config/load_model.toml       the load state from the spectral shape (a logistic regression)
     config/fused_model.toml      the fused score: the healthy couplings' spread, per load
-    config/fault_signatures.toml the coupling patterns of each corner's faults, per load
+    config/fault_signatures.toml the coupling patterns of each corner's faults, per load: the old
+                                 diagnosis's prior, no longer read by it (daemon/diagnosis.py
+                                 names the corner from the geometry); still parsed and shipped
+                                 while config.py, lab/modelfit.py and tests refer to it
 
 They are fitted on a simulated training fleet by `bogiemon evaluate --fit-models` (lab/modelfit.py;
 the wagons, runs and numbers are in each file's header and in docs/robust/README.md) and read
@@ -18,6 +21,7 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -65,6 +69,72 @@ class LoadModel:
         if not math.isfinite(z):
             return math.nan
         return 1.0 / (1.0 + math.exp(-max(min(z, 50.0), -50.0)))
+
+
+@dataclass(frozen=True)
+class LoadSignature:
+    """A load state the wagon was commissioned in (decision.load_states): its windows' load vector
+    (LOAD_NAMES) has this center and robust scale; a window farther than limit (the RMS of its
+    z-scores) is like nothing seen at commissioning."""
+
+    load: str
+    center: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    limit: float
+
+    def distance(self, x: NDArray[np.float64]) -> float:
+        z = (x - self.center) / self.scale
+        return float(np.sqrt(np.mean(z * z)))
+
+
+def load_features(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[np.float64] | None:
+    """The load vector of a window (LOAD_NAMES); None when it has no spectra or a mode no power."""
+    if window.spectra is None:
+        return None
+    x = load_vector(window.spectra, geometry)
+    return x if bool(np.all(np.isfinite(x))) else None
+
+
+@dataclass(frozen=True)
+class LoadDiscriminant:
+    """The wagon's own line between its two commissioned load states (decision.load_discriminant):
+    a linear discriminant of the load vector, scaled so that its value's healthy scatter within a
+    state is 1 (daemon/commissioning.py: fit_discriminant). Positive: full."""
+
+    weights: NDArray[np.float64]
+    offset: float
+    margin: float  # |value| below this: between the states, not judged
+    separation: float  # the distance of the states' centres along it, in the same units
+
+    def value(self, x: NDArray[np.float64]) -> float:
+        return float(np.dot(self.weights, x) + self.offset)
+
+    def load_of(self, x: NDArray[np.float64]) -> str | None:
+        v = self.value(x)
+        return "full" if v >= self.margin else "tare" if v <= -self.margin else None
+
+
+def nearest_load(
+    window: WindowIndicators, geometry: BogieGeometry, states: Sequence[LoadSignature], discriminant: LoadDiscriminant | None = None
+) -> tuple[str | None, float]:
+    """(the commissioned load state of the window, its distance to that state); (None, distance)
+    when it is farther than that state's limit, between the states (the discriminant's margin), or
+    has no load vector (distance NaN). With a discriminant the state is its side of it (within its
+    margin: the nearest state, if on that side); without, the nearest state."""
+    x = load_features(window, geometry)
+    if x is None or not states:
+        return None, math.nan
+    distance, state = min((s.distance(x), s) for s in states)
+    if discriminant is not None and {s.load for s in states} == {"full", "tare"}:
+        load = discriminant.load_of(x)
+        if load is None:
+            # Within the margin: judged only where the nearest state is on the same side of the
+            # line (the two rules agree), else between the states.
+            side = "full" if discriminant.value(x) >= 0 else "tare"
+            return (state.load if state.load == side and distance <= state.limit else None), distance
+        state = next(s for s in states if s.load == load)
+        distance = state.distance(x)
+    return (state.load if distance <= state.limit else None), distance
 
 
 # --------------------------------------------------------------------------------------------
@@ -147,8 +217,10 @@ class FusedModel:
     def population(self) -> Baseline:
         return Baseline("population", self.population_center, whitening_of(self.population_covariance), self.population_levels, self.trend_tau_s)
 
-    def calibrated(self, center: Sequence[float], levels: Levels) -> Baseline:
-        return Baseline("calibrated", np.asarray(center, dtype=np.float64), whitening_of(self.covariance), levels, self.trend_tau_s)
+    def calibrated(self, center: Sequence[float], levels: Levels, covariance: NDArray[np.float64] | None = None) -> Baseline:
+        """The wagon's baseline: its center, and its own spread when commissioning learned one."""
+        spread = self.covariance if covariance is None else np.asarray(covariance, dtype=np.float64)
+        return Baseline("calibrated", np.asarray(center, dtype=np.float64), whitening_of(spread), levels, self.trend_tau_s)
 
 
 def coupling_features(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[np.float64] | None:
@@ -160,7 +232,10 @@ def coupling_features(window: WindowIndicators, geometry: BogieGeometry) -> NDAr
 
 
 # --------------------------------------------------------------------------------------------
-# Fault signatures
+# Fault signatures: the old diagnosis's prior, fitted on the simulator's training fleet. It named
+# the right corner for 42 of 90 confirmed faults of an independently built wagon model, often
+# confidently wrong; the diagnosis now reads the corner from the geometry alone and no longer
+# uses these (kept while the config and the lab's model fitting still build them).
 
 
 @dataclass(frozen=True)
@@ -185,11 +260,15 @@ class SignatureSet:
 # Reading the files
 
 
-def _read(name: str) -> dict[str, Any]:
+def _read(name: str, directory: str = "") -> dict[str, Any]:
     try:
-        text = resources.files("bogiemon.config").joinpath(name).read_text(encoding="utf-8")
+        if directory:
+            text = (Path(directory) / name).read_text(encoding="utf-8")
+        else:
+            text = resources.files("bogiemon.config").joinpath(name).read_text(encoding="utf-8")
     except (OSError, ValueError):
-        raise ModelError(f"{name}: no such model file in bogiemon's config folder; regenerate it with `bogiemon evaluate --fit-models`") from None
+        where = directory or "bogiemon's config folder"
+        raise ModelError(f"{name}: no such model file in {where}; regenerate it with `bogiemon evaluate --fit-models`") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -280,10 +359,11 @@ class ShippedModels:
 
 
 @functools.cache
-def shipped_models() -> ShippedModels:
-    """The models in bogiemon's config folder (read once per process)."""
-    load = parse_load_model(_read(LOAD_MODEL_FILE))
-    fused_data, signature_data = _read(FUSED_MODEL_FILE), _read(SIGNATURES_FILE)
+def shipped_models(directory: str = "") -> ShippedModels:
+    """The priors in bogiemon's config folder, or in `directory` (decision.models_dir: priors
+    refitted on another fleet); read once per process and folder."""
+    load = parse_load_model(_read(LOAD_MODEL_FILE, directory))
+    fused_data, signature_data = _read(FUSED_MODEL_FILE, directory), _read(SIGNATURES_FILE, directory)
     return ShippedModels(
         load=load,
         fused={ld: parse_fused_model(fused_data, ld) for ld in ("full", "tare")},

@@ -22,7 +22,7 @@ from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, J
 from bogiemon.daemon.events import Event
 from bogiemon.daemon.health import HealthSettings, HealthState, HealthTracker, WindowHealth, assess_window
 from bogiemon.daemon.logs import get_logger
-from bogiemon.daemon.models import LoadModel
+from bogiemon.daemon.models import LoadDiscriminant, LoadModel, LoadSignature, nearest_load
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
 from bogiemon.daemon.windowing import BlockWindows
@@ -46,6 +46,10 @@ class MonitorSettings:
     config_hash: str
     sensor_clear_after_windows: int = 3
     load_model: LoadModel | None = None
+    # The load states the wagon was commissioned in: with them, load "auto" takes the nearest, and
+    # a window like none of them is not judged (never an alarm for being unfamiliar).
+    load_states: tuple[LoadSignature, ...] = ()
+    load_discriminant: LoadDiscriminant | None = None  # with both states: the wagon's own line between them
 
     def __post_init__(self) -> None:
         if self.load == "auto" and self.load_model is None:
@@ -63,6 +67,7 @@ class WindowReport:
     events: tuple[Event, ...]
     load: str | None = None  # the load state the window was judged in
     p_full: float | None = None  # the estimated probability of full load (load "auto")
+    unfamiliar: float | None = None  # not judged: its load vector's distance to every commissioned state is beyond the limit
 
 
 @dataclass
@@ -75,6 +80,7 @@ class MonitorCounters:
     windows: int = 0
     judged: int = 0
     gated: int = 0
+    unfamiliar: int = 0  # of the gated: in a load state unlike any of the commissioning
     sensor_fault_windows: int = 0
     events: int = 0
 
@@ -88,6 +94,9 @@ class JudgedWindow:
     events: list[Event]
     load: str | None
     p_full: float | None
+    # The distance of the window's load vector to the nearest commissioned load state, when it was
+    # farther than that state's limit: the window was not judged.
+    unfamiliar: float | None = None
 
 
 class WindowJudge:
@@ -120,7 +129,12 @@ class WindowJudge:
         if not health.judgeable or self.health.faulted:
             return JudgedWindow(health, None, events, None, None)
         load, p_full, context = s.load, None, {"load_source": "configured"}
-        if s.load == "auto":
+        if s.load == "auto" and s.load_states:
+            nearest, distance = nearest_load(window, s.geometry, s.load_states, s.load_discriminant)
+            if nearest is None:
+                return JudgedWindow(health, None, events, None, None, unfamiliar=distance)
+            load, context = nearest, {"load_source": "commissioned", "load_distance": round(distance, 3)}
+        elif s.load == "auto":
             assert s.load_model is not None
             p_full = s.load_model.probability_full(window, s.geometry)
             # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on
@@ -209,13 +223,14 @@ class Monitor:
         health, judgement, events = judged.health, judged.judgement, judged.events
         if judgement is not None:
             self.counters.judged += 1
-        elif health.gate is not None:
+        elif health.gate is not None or judged.unfamiliar is not None:
             self.counters.gated += 1
+            self.counters.unfamiliar += judged.unfamiliar is not None
         else:
             self.counters.sensor_fault_windows += 1
         if events or self.held:
             events = self._commit(events)
-        self.latest = WindowReport(window, health, judgement, self.mode, tuple(events), judged.load, judged.p_full)
+        self.latest = WindowReport(window, health, judgement, self.mode, tuple(events), judged.load, judged.p_full, judged.unfamiliar)
         for observer in self.observers:
             observer(self.latest)
         return events

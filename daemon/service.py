@@ -46,6 +46,8 @@ def status_line(report: WindowReport | None, monitor: Monitor) -> str:
         parts.append(f"gated: {report.health.gate.value}")
     if not report.health.sensors_ok:
         parts.append("sensor fault: " + ", ".join(f"{ch} {'/'.join(p.value for p in ps)}" for ch, ps in report.health.problems.items()))
+    if report.unfamiliar is not None:
+        parts.append(f"not judged: the load is unlike the commissioning's, or between its states (distance {report.unfamiliar:.1f})")
     if report.load is not None:
         parts.append(f"load {report.load}" + (f" (p_full {report.p_full:.2f})" if report.p_full is not None else ""))
     if report.judgement is not None:

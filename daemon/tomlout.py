@@ -20,7 +20,8 @@ def dumps(data: Mapping[str, Any]) -> str:
 
 
 def _table(data: Mapping[str, Any], path: list[str], lines: list[str]) -> None:
-    scalars = {k: v for k, v in data.items() if not isinstance(v, Mapping)}
+    # TOML has no null: a key set to None is left out, which reads back as the field's default (None).
+    scalars = {k: v for k, v in data.items() if not isinstance(v, Mapping) and v is not None}
     tables = {k: v for k, v in data.items() if isinstance(v, Mapping)}
     if path and (scalars or not tables):
         lines.append(f"[{'.'.join(_key(p) for p in path)}]")

@@ -4,8 +4,11 @@ A dead, stuck, clipping or inverted sensor shows in the raw samples before the i
 mean (a vertical accelerometer at rest reads about +9.81 m/s^2 when mounted the right way up),
 the peak, the share of samples equal to their predecessor (a frozen converter repeats its last
 value), the longest run of equal consecutive samples (a converter that froze a moment ago: the
-share is still small, the run already long) and the share at or beyond the converter's clip
-level. Computed per hop and combined per window, on the same hops and windows as the indicators.
+share is still small, the run already long), the share at or beyond the converter's clip
+level, and the smallest and largest RMS of one hop (after removing the hop's own mean) over the
+window's hops: a wagon that stops, stands or starts within the window shows as hops far quieter
+than the others, while the window's RMS still looks like running. Computed per hop and combined
+per window, on the same hops and windows as the indicators.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 Triple = tuple[float, float, float]
+# A statistic a record does not carry (a record built by hand, without the core's hops).
+NOT_MEASURED: Triple = (float("nan"), float("nan"), float("nan"))
 
 
 def _triple(values: NDArray[np.float64]) -> Triple:
@@ -31,6 +36,9 @@ class ChannelStats:
     repeat_fraction: Triple  # share of samples equal to the previous one
     longest_run_s: Triple  # the longest run of equal consecutive samples, seconds (1 / fs: none)
     clipped_fraction: Triple  # share of samples with |a| >= the clip level
+    # The smallest and the largest RMS of one hop about the hop's own mean, over the window's hops.
+    hop_rms_min_mps2: Triple = NOT_MEASURED
+    hop_rms_max_mps2: Triple = NOT_MEASURED
 
 
 class WindowedChannelStats:
@@ -48,6 +56,7 @@ class WindowedChannelStats:
         self._repeats = np.zeros((hops_per_window, 3))
         self._boundary = np.zeros((hops_per_window, 3))
         self._clipped = np.zeros((hops_per_window, 3))
+        self._hop_rms = np.zeros((hops_per_window, 3))
         # Per hop and channel, in samples: the run that starts the hop, the run that ends it and
         # the longest inside it; a run crossing hops is joined where the boundary repeats.
         self._lead = np.zeros((hops_per_window, 3), dtype=np.int64)
@@ -68,6 +77,7 @@ class WindowedChannelStats:
         self._repeats[slot] = (hop[1:] == hop[:-1]).sum(axis=0)
         self._boundary[slot] = hop[0] == self._last  # False after a reset: NaN equals nothing
         self._clipped[slot] = (np.abs(hop) >= self.clip_level_mps2).sum(axis=0)
+        self._hop_rms[slot] = hop.std(axis=0)  # the population RMS about the hop's mean: gravity and bias out
         self._lead[slot], self._trail[slot], self._longest[slot] = _runs(hop)
         self._last = hop[-1].copy()
         if self._n_hops < self.hops_per_window:
@@ -81,6 +91,8 @@ class WindowedChannelStats:
             repeat_fraction=_triple(repeats / max(n - 1, 1)),
             longest_run_s=_triple(self._window_longest_run(first) / self.fs_hz),
             clipped_fraction=_triple(self._clipped.sum(axis=0) / n),
+            hop_rms_min_mps2=_triple(self._hop_rms.min(axis=0)),
+            hop_rms_max_mps2=_triple(self._hop_rms.max(axis=0)),
         )
 
     def _window_longest_run(self, first: int) -> NDArray[np.float64]:
@@ -127,13 +139,28 @@ def longest_run_reference(column: NDArray[np.float64]) -> int:
     return best
 
 
-def channel_stats_reference(window: NDArray[np.float64], fs_hz: float, clip_level_mps2: float = np.inf) -> ChannelStats:
-    """The same statistics of one (n, 3) window, computed directly."""
+def hop_rms_reference(window: NDArray[np.float64], hop_n: int) -> NDArray[np.float64]:
+    """(n_hops, 3): each hop's RMS about its own mean, hop by hop."""
+    rows = []
+    for start in range(0, window.shape[0], hop_n):
+        hop = window[start : start + hop_n]
+        rows.append(np.sqrt(np.mean((hop - hop.mean(axis=0)) ** 2, axis=0)))
+    return np.array(rows)
+
+
+def channel_stats_reference(
+    window: NDArray[np.float64], fs_hz: float, clip_level_mps2: float = np.inf, hop_n: int | None = None
+) -> ChannelStats:
+    """The same statistics of one (n, 3) window, computed directly; hops of hop_n samples (None:
+    the window is one hop)."""
     n = window.shape[0]
+    hop_rms = hop_rms_reference(window, hop_n or n)
     return ChannelStats(
         mean_mps2=_triple(window.mean(axis=0)),
         peak_abs_mps2=_triple(np.abs(window).max(axis=0)),
         repeat_fraction=_triple(np.count_nonzero(np.diff(window, axis=0) == 0, axis=0) / max(n - 1, 1)),
         longest_run_s=_triple(np.array([longest_run_reference(window[:, c]) for c in range(3)]) / fs_hz),
         clipped_fraction=_triple(np.count_nonzero(np.abs(window) >= clip_level_mps2, axis=0) / n),
+        hop_rms_min_mps2=_triple(hop_rms.min(axis=0)),
+        hop_rms_max_mps2=_triple(hop_rms.max(axis=0)),
     )

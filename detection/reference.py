@@ -126,7 +126,7 @@ def indicators_reference(
                 rms_bounce_mps2=sd_b,
                 rms_pitch_radps2=sd_p,
                 rms_roll_radps2=sd_r,
-                channels=channel_stats_reference(accel_mps2[s : s + n_win], settings.fs_hz, clip_level_mps2),
+                channels=channel_stats_reference(accel_mps2[s : s + n_win], settings.fs_hz, clip_level_mps2, hop_n=n_hop),
                 spectra=spectra_reference(high[s : s + n_win], n_hop, settings.fs_hz),
             )
         )

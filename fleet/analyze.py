@@ -43,7 +43,8 @@ from bogiemon.drivers.replay import open_replay
 from bogiemon.fleet import rows
 from bogiemon.fleet.layout import Day, Fleet, InputFile, Issue, Wagon, scan_fleet
 
-FORMAT = 1
+# 2: the channels' hop RMS range (the non-stationary gate) in every row.
+FORMAT = 2
 PART_FILE = "part-0.parquet"
 METADATA_KEY = b"bogiemon"
 SUMMARY_FILE = "_analysis.json"
@@ -406,6 +407,9 @@ def wagon_partitions(out_dir: str | Path, wagon: Wagon) -> list[tuple[Day, Path]
 
 
 def read_partition(path: Path) -> tuple[pa.Table, dict[str, Any]]:
+    """A partition's windows and metadata; ValueError for one of another format (its columns differ)."""
     table = pq.read_table(path)
     meta = json.loads((table.schema.metadata or {})[METADATA_KEY])
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"written in format {meta.get('format')!r}, this bogiemon reads {FORMAT}: run `bogiemon fleet analyze` again")
     return table, meta

@@ -59,7 +59,10 @@ def calibrate_wagon(
         raise FleetError(f"{wagon_id}: no analysed days in {windows_dir} (run `bogiemon fleet analyze` first)")
     windows: list[WindowIndicators] = []
     for _, path in chosen:
-        table, _ = read_partition(path)
+        try:
+            table, _ = read_partition(path)
+        except ValueError as exc:
+            raise FleetError(f"{path}: {exc}") from None
         windows += rows.from_table(table)
     config = load_config(wagon.config_path, log_warnings=False)  # the wagon's own config, without the old calibration
     files = tuple(str(p) for _, p in chosen)

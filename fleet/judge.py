@@ -144,8 +144,9 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
                         ev.first_day.append([float(v) for v in x])
                     if last_day:
                         ev.last_day.append([float(v) for v in x])
-            elif health.gate is not None:
+            elif health.gate is not None or judged.unfamiliar is not None:
                 counts["gated"] += 1
+                row["gate"] = row["gate"] or "unfamiliar_load"
             else:
                 counts["sensor"] += 1
             for name, _ in SERIES_FIELDS:

@@ -5,7 +5,7 @@ real wagons to try the back office.
     plan = FleetPlan()                                    # the demo; FleetPlan.tiny() for tests
     truth = simulate_fleet("FLEET", plan, progress)       # the tree, and what was wrong where
 
-THE WAGONS. Wagon i is drawn with the evaluation's make_wagon (lab/robust/fleet.py: its masses,
+THE WAGONS. Wagon i is drawn with the evaluation's make_wagon (lab/robust/wagons.py: its masses,
 springs, dampers and sensors spread over the fleet) from a seed of fleet_seed and i, and runs at
 one load all along (by default the wagons alternate full and tare, wagon 0 full). Its gateway's
 config names the paper's sensor layout (a1 leading-left, a2 leading-right, a3 trailing-left) and
@@ -51,15 +51,14 @@ from bogiemon.lab.robust.fleet import (
     HEALTHY,
     SENSOR_DAMAGE,
     RunSpec,
-    Wagon,
     case_kind,
     case_load,
     damage_sensors,
     draw_conditions,
     fault_cells,
-    make_wagon,
     scenario_for,
 )
+from bogiemon.lab.robust.wagons import Wagon, make_wagon
 
 Progress = Callable[[float], None]
 

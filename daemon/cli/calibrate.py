@@ -1,4 +1,5 @@
-"""`bogiemon calibrate RECORDINGS... --load auto|full|tare -o calibration.toml`: a wagon's healthy baseline."""
+"""`bogiemon calibrate --full RECORDINGS... --tare RECORDINGS... -o calibration.toml` (or RECORDINGS... --load
+auto|full|tare): a wagon's healthy baseline, per load state."""
 
 from __future__ import annotations
 
@@ -9,11 +10,14 @@ from pathlib import Path
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("calibrate", help="learn the wagon's healthy baseline (fused score and thresholds) from recordings of it")
-    p.add_argument("files", nargs="+", metavar="RECORDING", help="CSV recordings of the healthy wagon")
+    p.add_argument("files", nargs="*", metavar="RECORDING", help="recordings of the healthy wagon in the load state --load names")
     p.add_argument(
-        "--load", required=True, choices=("auto", "full", "tare"),
-        help="the load state of the recordings (auto: each window's estimated state; every state with enough windows is calibrated)",
+        "--load", choices=("auto", "full", "tare"),
+        help="the load state of the RECORDINGs (auto: split by the shipped load model, a prior fitted on the simulator; "
+        "prefer --full and --tare on a real wagon)",
     )  # fmt: skip
+    p.add_argument("--full", nargs="+", default=(), metavar="RECORDING", help="recordings of the healthy wagon loaded")
+    p.add_argument("--tare", nargs="+", default=(), metavar="RECORDING", help="recordings of the healthy wagon empty")
     p.add_argument("-o", "--output", required=True, help="the config fragment to write (TOML)")
     p.add_argument("--config", help="config file (default: the shipped default config)")
     p.add_argument("--indicators", help="comma-separated indicators (default: those the config thresholds for --load)")
@@ -25,11 +29,31 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.calibrate import calibrate, fragment
     from bogiemon.daemon.config import load_config
+    from bogiemon.daemon.calibrate import CalibrationError, calibrate_loads
+
     config = load_config(args.config)
     names = [n.strip() for n in args.indicators.split(",")] if args.indicators else None
-    result = calibrate(args.files, config, args.load, names, args.warning_rate, args.alarm_rate)
+    per_load = {ld: list(paths) for ld, paths in (("full", args.full), ("tare", args.tare)) if paths}
+    if bool(per_load) == bool(args.files or args.load):
+        raise CalibrationError("give recordings with --load (RECORDING... --load full|tare|auto), or per load with --full ... and --tare ...")
+    if per_load:
+        result = calibrate_loads(per_load, config, names, args.warning_rate, args.alarm_rate)
+    else:
+        if not args.files or not args.load:
+            raise CalibrationError("RECORDING... needs --load full, tare or auto (or use --full ... --tare ...)")
+        result = calibrate(args.files, config, args.load, names, args.warning_rate, args.alarm_rate)
     Path(args.output).write_text(fragment(result), encoding="utf-8")
     print(f"{result.n_judged} of {result.n_windows} windows judged; wrote {args.output}", file=sys.stderr)
+    if result.load_note:
+        print(f"  load states: {result.load_note}", file=sys.stderr)
+    if result.discriminant is not None:
+        d = result.discriminant
+        print(f"  full and tare lie {d.separation:.1f} of their scatter apart; windows within {d.margin:.1f} of the middle are not judged", file=sys.stderr)
+    elif len(result.loads) == 2:
+        print("  full and tare lie too close to draw a line between them: the nearest state decides", file=sys.stderr)
+    if result.structure is not None:
+        checks = ", ".join(result.structure.checks) or "none (no SWAPPED or INVERTED will be reported)"
+        print(f"  sensor structure checks in force: {checks}", file=sys.stderr)
     for ld, n in result.skipped.items():
         print(f"  {ld}: only {n} windows, not calibrated (record longer runs in that load state)", file=sys.stderr)
     for load in result.loads:

@@ -23,5 +23,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"# {args.file or 'default config'}: valid (digest {config.digest()})")
     for warning in config.credential_warnings():
         print(f"# warning: {warning}")
-    print(tomlout.dumps(config.model_dump(mode="json")), end="")
+    print(tomlout.dumps(config.model_dump(mode="json", exclude_none=True)), end="")
     return 0

@@ -42,6 +42,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     c.add_argument("--days", nargs="+", default=(), metavar="YYYY-MM-DD", help="the healthy days to learn from (default: the first analysed day)")
     c.add_argument("--first-days", type=int, default=1, help="without --days: this many of the first analysed days (default 1)")
     c.add_argument("--uncommissioned", action="store_true", help="every wagon without a calibration.toml")
+    c.add_argument("--load", choices=("auto", "full", "tare"), default="auto",
+                   help="the load state of those days (default auto: split by the shipped load model, a prior; state it when you know it)")
     c.add_argument("--force", action="store_true", help="replace an existing calibration")
     c.set_defaults(run=run_calibrate)
 
@@ -123,7 +125,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     failed = 0
     for wagon_id in ids:
         try:
-            done = calibrate_wagon(args.fleet, args.windows, wagon_id, days=args.days, first_days=args.first_days, force=args.force)
+            done = calibrate_wagon(args.fleet, args.windows, wagon_id, days=args.days, first_days=args.first_days, force=args.force, load=args.load)
         except (CalibrationError, FleetError) as exc:
             if args.wagon:
                 raise

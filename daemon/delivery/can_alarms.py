@@ -35,7 +35,10 @@ ALARM_KINDS = {EventKind.CONFIRMED: 1, EventKind.CLEARED: 2}  # the events that 
 SEVERITY_CODES = {Severity.INFO: 0, Severity.WARNING: 1, Severity.ALARM: 2}
 INDICATOR_CODES = {name: i + 1 for i, name in enumerate(INDICATOR_FIELDS)}  # 0: none
 MODE_CODES = {"normal": 0, "suspected": 1, "confirmed": 2}
-GATE_CODES = {None: 0, "standstill": 1, "weak_excitation": 2}
+# The frame is full (64 bits): a stop or a start inside the window shares the standstill code, 1;
+# MQTT's window.gate tells them apart. A window not judged for an unfamiliar load is Judged 0,
+# SensorsOk 1, Gate 0 (config/bogiemon.dbc says so).
+GATE_CODES = {None: 0, "standstill": 1, "non_stationary": 1, "weak_excitation": 2}
 NO_WINDOW_GATE = 3
 LINK_CODES = {"disabled": 0, "down": 1, "up": 2}
 ALARM_QUEUE_N = 64

@@ -144,7 +144,7 @@ class LatestWindow(_Message):
     start_s: UnixTime
     end_s: UnixTime
     judged: bool
-    gate: ShortName | None  # "standstill", "weak_excitation" or null
+    gate: ShortName | None  # "standstill", "non_stationary", "weak_excitation" or null
     sensors_ok: bool
     sensor_problems: Problems  # channel ("a1".., "source") -> problems
     indicators: Indicators  # all eight, i1..i4 and i1_norm..i4_norm

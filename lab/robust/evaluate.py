@@ -107,7 +107,8 @@ def fit_and_write_models(data: EvaluationData, config: BogiemonConfig, directory
     """Fit the shipped models on the plan's training fleet and write them (default: config/)."""
     plan = data.plan
     description = (
-        f"training fleet: {plan.n_training_wagons} simulated wagons of the '{plan.name}' evaluation plan (fleet seed {plan.fleet_seed}), "
+        f"training fleet: {plan.n_training_wagons} simulated wagons of model {plan.model.upper()} of the '{plan.name}' evaluation plan "
+        f"(fleet seed {plan.fleet_seed}), "
         f"disjoint from its evaluation fleet;\n"
         f"{plan.training_healthy_runs} healthy runs of {plan.training_healthy_s:g} s per wagon and load (the first "
         f"{plan.calibration_runs} its commissioning), "
@@ -127,33 +128,53 @@ class EvaluateError(ValueError):
     """An evaluation that cannot run as asked (bad folder, unreadable data file); the message says why."""
 
 
+def read_cache(path: Path) -> Any:
+    """What a data file holds (an EvaluationData, or a mapping of them); EvaluateError when it is
+    unreadable or written by an older bogiemon."""
+    try:
+        with path.open("rb") as f:
+            cached = pickle.load(f)  # noqa: S301 - the user's own cache, named on the command line
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
+        raise EvaluateError(f"{path}: cannot read the simulated data ({exc}): delete it to simulate again") from None
+    for data in cached.values() if isinstance(cached, dict) else (cached,):
+        missing = _missing_window_fields(data)
+        if missing:
+            raise EvaluateError(f"{path}: written by an older bogiemon, its windows lack {', '.join(missing)}: delete it to simulate again")
+    return cached
+
+
+def write_cache(path: Path, data: Any) -> None:
+    try:
+        with path.open("wb") as f:
+            pickle.dump(data, f, protocol=pickle.HIGHEST_PROTOCOL)
+    except OSError as exc:
+        raise EvaluateError(f"{path}: cannot write the simulated data: {exc.strerror or exc}") from None
+
+
+def reuse(cached: Any, plan: EvaluationPlan, config: BogiemonConfig) -> EvaluationData | dict[Any, Any]:
+    """From a cached simulation: the whole data when it is this plan's at these settings; else its
+    runs that this plan has too (same settings, fleet seed and wagon model: a run is a function of
+    its spec alone), to simulate only the others; else nothing."""
+    settings, geometry = config.processing_settings(), config.bogie_geometry()
+    if cached is None or getattr(cached, "settings", None) != settings or cached.geometry != geometry:
+        return {}
+    if cached.plan == plan:
+        return cached  # type: ignore[no-any-return]
+    if cached.plan.fleet_seed == plan.fleet_seed and cached.plan.model == plan.model:
+        return {r.run: r for r in cached.runs}
+    return {}
+
+
 def load_or_simulate(plan: Any, config: BogiemonConfig, data_file: str | Path | None, progress: Progress | None) -> EvaluationData:
     """The plan's simulated windows: from data_file when it holds this plan and settings, else simulated
     (and written there when a file is named)."""
-    settings, geometry = config.processing_settings(), config.bogie_geometry()
     path = Path(data_file) if data_file else None
-    have = {}
-    if path is not None and path.exists():
-        try:
-            with path.open("rb") as f:
-                cached = pickle.load(f)  # noqa: S301 - the user's own cache, named on the command line
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
-            raise EvaluateError(f"{path}: cannot read the simulated data ({exc}): delete it to simulate again") from None
-        missing = _missing_window_fields(cached)
-        if missing:
-            raise EvaluateError(f"{path}: written by an older bogiemon, its windows lack {', '.join(missing)}: delete it to simulate again")
-        if getattr(cached, "plan", None) == plan and cached.settings == settings and cached.geometry == geometry:
-            return cached  # type: ignore[no-any-return]
-        # Another version of the plan at the same settings: its runs are reused, the rest simulated.
-        if getattr(cached, "settings", None) == settings and cached.geometry == geometry and cached.plan.fleet_seed == plan.fleet_seed:
-            have = {r.run: r for r in cached.runs}
-    data = simulate_plan(plan, settings, geometry, progress, have=have)
+    found = reuse(read_cache(path), plan, config) if path is not None and path.exists() else {}
+    if isinstance(found, EvaluationData):
+        return found
+    data = simulate_plan(plan, config.processing_settings(), config.bogie_geometry(), progress, have=found)
     if path is not None:
-        try:
-            with path.open("wb") as f:
-                pickle.dump(data, f, protocol=pickle.HIGHEST_PROTOCOL)
-        except OSError as exc:
-            raise EvaluateError(f"{path}: cannot write the simulated data: {exc.strerror or exc}") from None
+        write_cache(path, data)
     return data
 
 

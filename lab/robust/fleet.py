@@ -7,14 +7,7 @@ plan of their commissioning, healthy, fault and sensor runs, and every run's win
     score = score_method(data, ...)                    # lab/robust/score.py
     write_report(data, [score], "docs/robust", ...)    # lab/robust/report.py
 
-THE FLEET. Each wagon is drawn from its own seed: masses and inertias of carbody and bogie frames
-+/-10 %, the coil springs +/-5 % (the wagon's batch) and each corner's nest another +/-5 %, the
-friction dampers' Fs +/-10 % per wagon (every Fs of the paper's tables, so a fault keeps its
-meaning relative to the wagon's healthy damper) and +/-10 % per corner, the dampers' stick
-stiffness and the side bearers' stiffness +/-10 % and +/-20 %; and its three sensors: gain
-+/-3 %, bias +/-0.3 m/s^2, white noise 0.005 to 0.03 m/s^2 per sample, 16-bit quantisation over
-+/-16 g. All uniform. A corner's own tolerance is put on as the simulator's `custom` fault of that
-corner (its tangent stiffness and Fs), so a healthy wagon is never exactly symmetric.
+THE FLEET: lab/robust/wagons.py (each wagon's draws on either wagon model).
 
 THE RUNS. Every run drives on one track quality drawn from ERRI low and high level and FRA
 classes 4, 5 and 6, at a speed that drifts within 50..110 km/h (a random walk through a point every
@@ -27,7 +20,9 @@ the other bogie through the carbody). Per wagon and load:
 - healthy test runs: the same wagon later, other tracks and speeds, for the false alarms;
 - fault runs: a healthy lead-in that fills the windows, then the fault appears under the running
   wagon (the simulator's fault onset) and the run goes on; a run counts as detected when the
-  fault is CONFIRMED within DETECTION_HORIZON_S of running with it.
+  fault is CONFIRMED within DETECTION_HORIZON_S of running with it;
+- stops (off in the default plan): healthy runs that brake to a stop once or twice, stand 60 to
+  120 s and start again (draw_conditions); standing (off too): the wagon stands the whole run.
 Every fault case of the paper's Tables 1 to 3 at every severity, on every corner of the monitored
 bogie (the one without a sensor too), and the inner coils in tare (which do not touch the frame:
 invisible by construction, run to show it). Fault runs are spread over the fleet's wagons.
@@ -38,22 +33,20 @@ of the evaluation fleet is used to fit them.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
 import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, WindowIndicators
-from bogiemon.simulator.params import default_parameter_set
 from bogiemon.simulator.scenario import Scenario, SpeedProfile
-from bogiemon.simulator.sensors import SensorModel
 from bogiemon.lab.study.plan import HEALTHY, table4_cases
+from bogiemon.lab.robust.wagons import Wagon, make_wagon
 from bogiemon.simulator.suspension import CORNER_ORDER, Fault
 
 Progress = Callable[[float], None]
@@ -72,19 +65,9 @@ MIRROR: dict[Corner, Corner] = {
 # Every cell of the paper's tables, plus the tare inner coils (not in Table 4: invisible in tare).
 TARE_INNER: dict[str, tuple[float, ...]] = {"type_a.tare.front_inner": (0.0, 0.5, 1.5, 2.0), "type_a.tare.rear_inner": (0.0, 0.5, 1.5, 2.0)}
 
-# Spread of a wagon (half-widths of uniform distributions, relative).
-MASS_SPREAD = 0.10
-COIL_BATCH_SPREAD = 0.05
-COIL_CORNER_SPREAD = 0.05
-FRICTION_WAGON_SPREAD = 0.10
-FRICTION_CORNER_SPREAD = 0.10
-STICK_SPREAD = 0.10
-SIDE_BEARER_SPREAD = 0.20
-SENSOR_GAIN_SPREAD = 0.03
-SENSOR_BIAS_MPS2 = 0.3
-SENSOR_NOISE_RANGE_MPS2 = (0.005, 0.03)
-SENSOR_QUANTUM_MPS2 = 2 * 16 * 9.80665 / 65536  # 16 bits over +/-16 g
 
+
+HISS_RMS_MPS2 = 0.4  # "hiss a2": per sample at the recording's rate
 
 # What can be wrong with the sensors (applied to the simulated output; see damage_sensors).
 SENSOR_DAMAGE: dict[str, str] = {
@@ -98,6 +81,8 @@ SENSOR_DAMAGE: dict[str, str] = {
     "swapped a1-a2": "the cables of a1 and a2 exchanged",
     "swapped a1-a3": "the cables of a1 and a3 exchanged",
     "swapped a2-a3": "the cables of a2 and a3 exchanged",
+    "hiss a2": f"a2 picks up white noise of {HISS_RMS_MPS2:g} m/s^2 RMS, a failing sensor or a poor cable screen: "
+    "less than a running frame's own signal, so no level check sees it",
 }
 # The problem daemon/health.py should name, and on which channels.
 EXPECTED_PROBLEM: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -111,6 +96,7 @@ EXPECTED_PROBLEM: dict[str, tuple[str, tuple[str, ...]]] = {
     "swapped a1-a2": ("swapped", ("a1", "a2")),
     "swapped a1-a3": ("swapped", ("a1", "a3")),
     "swapped a2-a3": ("swapped", ("a2", "a3")),
+    "hiss a2": ("noisy", ("a2",)),
 }
 
 
@@ -126,6 +112,9 @@ def damage_sensors(accel_mps2: np.ndarray, damage: str, fs_hz: float, seed: int)
         a[at:, 1] = a[at, 1]
     elif kind == "noisy":
         a[:, 2] += rng.normal(0.0, 8.0, a.shape[0])
+    elif kind == "hiss":
+        c = int(what[1]) - 1
+        a[:, c] += rng.normal(0.0, HISS_RMS_MPS2, a.shape[0])
     elif kind == "clipping":
         a[:: int(0.5 * fs_hz), 2] += 400.0
         a[:, 2] = np.clip(a[:, 2], -156.9, 156.9)
@@ -157,92 +146,6 @@ def case_kind(key: str, severity: float) -> str:
 
 
 # --------------------------------------------------------------------------------------------
-# The fleet
-
-
-@dataclass(frozen=True)
-class Wagon:
-    """One simulated wagon: its parameter set, its corners' tolerances and its sensors."""
-
-    name: str
-    seed: int
-    parameters: dict[str, Any] = field(repr=False)
-    corner_kz_scale: tuple[float, ...]  # 8 corners: leading bogie then trailing, CORNER_ORDER
-    corner_fs_scale: tuple[float, ...]
-    sensor: SensorModel
-    spread: dict[str, float]  # the drawn wagon-level factors, for the report
-
-    def tolerance_fault(self, physical: Corner, bogie: str, config_corner: Corner, load: str) -> Fault:
-        """The healthy corner with its tolerances, as the simulator's custom fault at `physical`.
-
-        The tolerances belong to the corner of the frame (named in the config's reference
-        direction), wherever the direction of travel puts it.
-        """
-        k = (0 if bogie == "leading" else 4) + CORNER_ORDER.index(config_corner)
-        cases = self.parameters["fault_cases"]["healthy"][load]
-        return Fault(
-            kind="custom",
-            corner=physical,
-            bogie=bogie,
-            kz_n_per_m=float(cases["Kz"]) * self.corner_kz_scale[k],
-            fs_n=float(cases["Fs"]) * self.corner_fs_scale[k],
-        )
-
-
-def _scale_fs(cases: dict[str, Any], factor: float) -> None:
-    """Every Fs of the paper's tables times factor (the Lenoir link scales them all alike)."""
-    for load in ("full", "tare"):
-        cases["healthy"][load]["Fs"] = float(cases["healthy"][load]["Fs"]) * factor
-        for position in cases["type_a"][load].values():
-            for entry in position.values():
-                entry[1] = float(entry[1]) * factor
-        for key, value in cases["type_b"][load].items():
-            if key != "nominal_Fs":
-                cases["type_b"][load][key] = float(value) * factor
-
-
-def make_wagon(name: str, seed: int) -> Wagon:
-    """Draw one wagon of the fleet (module docstring) from its seed."""
-    rng = np.random.default_rng(seed)
-
-    def factor(half_width: float) -> float:
-        return float(1.0 + rng.uniform(-half_width, half_width))
-
-    params = copy.deepcopy(default_parameter_set())
-    vehicle, cases = params["vehicle"], params["fault_cases"]
-    spread: dict[str, float] = {}
-    for load in ("full", "tare"):
-        spread[f"carbody_mass_{load}"] = f = factor(MASS_SPREAD)
-        cases["wagon"][f"carbody_mass_{load}_kg"] = float(cases["wagon"][f"carbody_mass_{load}_kg"]) * f
-        for axis in ("pitch", "roll"):
-            spread[f"carbody_{axis}_inertia_{load}"] = f = factor(MASS_SPREAD)
-            vehicle["carbody"][f"{axis}_inertia_{load}_kg_m2"] = float(vehicle["carbody"][f"{axis}_inertia_{load}_kg_m2"]) * f
-    for name_, spread_width, table, key in (
-        ("frame_mass", MASS_SPREAD, "bogie_frame", "mass_kg"),
-        ("frame_pitch_inertia", MASS_SPREAD, "bogie_frame", "pitch_inertia_kg_m2"),
-        ("frame_roll_inertia", MASS_SPREAD, "bogie_frame", "roll_inertia_kg_m2"),
-        ("coils", COIL_BATCH_SPREAD, "primary", "outer_coil_stiffness_n_per_m"),
-        ("stick_stiffness", STICK_SPREAD, "primary", "stick_stiffness_n_per_m"),
-        ("side_bearers", SIDE_BEARER_SPREAD, "side_bearers", "stiffness_n_per_m"),
-    ):
-        spread[name_] = f = factor(spread_width)
-        vehicle[table][key] = float(vehicle[table][key]) * f
-        if name_ == "coils":  # one batch: outer and inner coils alike
-            vehicle["primary"]["inner_coil_stiffness_n_per_m"] = float(vehicle["primary"]["inner_coil_stiffness_n_per_m"]) * f
-    spread["friction"] = f = factor(FRICTION_WAGON_SPREAD)
-    _scale_fs(cases, f)
-    kz = tuple(factor(COIL_CORNER_SPREAD) for _ in range(8))
-    fs = tuple(factor(FRICTION_CORNER_SPREAD) for _ in range(8))
-    sensor = SensorModel(
-        noise_mps2=float(rng.uniform(*SENSOR_NOISE_RANGE_MPS2)),
-        bias_mps2=tuple(float(b) for b in rng.uniform(-SENSOR_BIAS_MPS2, SENSOR_BIAS_MPS2, 3)),  # type: ignore[arg-type]
-        quantum_mps2=SENSOR_QUANTUM_MPS2,
-        gain=tuple(factor(SENSOR_GAIN_SPREAD) for _ in range(3)),  # type: ignore[arg-type]
-    )
-    return Wagon(name, seed, params, kz, fs, sensor, spread)
-
-
-# --------------------------------------------------------------------------------------------
 # The plan
 
 
@@ -250,7 +153,9 @@ def make_wagon(name: str, seed: int) -> Wagon:
 class RunSpec:
     """One run: who, what, where. `corner` is the fault's corner in the config's naming."""
 
-    role: str  # "calibration", "healthy", "fault", "trend", "sensor" (evaluation fleet) or "train-healthy", "train-fault"
+    # "calibration", "healthy", "fault", "trend", "sensor", "stops", "standing" (evaluation fleet)
+    # or "train-healthy", "train-fault"
+    role: str
     wagon: int  # index into the plan's fleet (evaluation or training, by role)
     load: str
     key: str  # HEALTHY or a case key, e.g. "type_a.full.rear_outer"
@@ -302,7 +207,56 @@ def draw_conditions(run: RunSpec) -> Conditions:
         v = 2 * SPEED_MAX_KMH - v if v > SPEED_MAX_KMH else v
         speeds.append(float(np.clip(v, SPEED_MIN_KMH, SPEED_MAX_KMH)))
     points = tuple((k * SPEED_POINT_EVERY_S, round(v, 3)) for k, v in enumerate(speeds))
-    return Conditions(track, SpeedProfile(points), bool(rng.integers(2)))
+    reversed_ = bool(rng.integers(2))
+    if run.role == "standing":
+        points = ((0.0, 0.0),)
+    elif run.role == "stops":
+        points = with_stops(points, run.duration_s, np.random.default_rng([run.seed, 3]))
+    return Conditions(track, SpeedProfile(points), reversed_)
+
+
+# A stop of a freight train: service braking, a stand, and a start at what the locomotive pulls.
+BRAKING_MPS2 = 0.5
+STARTING_MPS2 = 0.3
+STAND_S = (60.0, 120.0)
+FIRST_STOP_S = (60.0, 120.0)  # the first braking begins this far into the run
+BETWEEN_STOPS_S = (30.0, 90.0)  # running at speed between one start and the next braking
+
+
+def with_stops(points: Sequence[tuple[float, float]], duration_s: float, rng: np.random.Generator) -> tuple[tuple[float, float], ...]:
+    """The drifting speed profile with one or two stops in it: from the profile's speed at the
+    braking, down to 0 km/h at BRAKING_MPS2, standing STAND_S, up at STARTING_MPS2 until it meets
+    the profile again, which it then follows. A second stop only where it ends within the run."""
+    times = np.array([t for t, _ in points])
+    speeds = np.array([v for _, v in points])
+
+    def drift(t: float) -> float:
+        return float(np.interp(t, times, speeds))
+
+    wanted = 1 + int(rng.integers(2))
+    stops: list[tuple[float, float, float, float]] = []  # (braking starts, stands, starts, back at speed)
+    begin = float(rng.uniform(*FIRST_STOP_S))
+    for _ in range(wanted):
+        stand_s = float(rng.uniform(*STAND_S))
+        halt = begin + drift(begin) / 3.6 / BRAKING_MPS2
+        start = halt + stand_s
+        # Back on the profile where the start's ramp meets it (the profile changes slowly: a few
+        # fixed-point steps are exact to well under a second).
+        resume = start + drift(start) / 3.6 / STARTING_MPS2
+        for _ in range(8):
+            resume = start + drift(resume) / 3.6 / STARTING_MPS2
+        if resume > duration_s and stops:
+            break
+        stops.append((begin, halt, start, resume))
+        begin = resume + float(rng.uniform(*BETWEEN_STOPS_S))
+    out: list[tuple[float, float]] = []
+    after = -1.0  # the profile's points are kept from here on (half a second clear of a ramp's ends)
+    for begin, halt, start, resume in stops:
+        out += [(t, v) for t, v in points if after < t < begin - 0.5]
+        out += [(begin, drift(begin)), (halt, 0.0), (start, 0.0), (resume, drift(resume))]
+        after = resume + 0.5
+    out += [(t, v) for t, v in points if t > after]
+    return tuple((round(t, 3), round(v, 3)) for t, v in out)
 
 
 @dataclass(frozen=True)
@@ -330,6 +284,19 @@ class EvaluationPlan:
     fleet_seed: int = 2026
     loads: tuple[str, ...] = ("full", "tare")
     corners: tuple[Corner, ...] = tuple(Corner)
+    model: str = "a"  # the wagon model every run is simulated on (Scenario.model)
+    # The (case, severity) cells of the single fault runs, of the trend sequences and of the
+    # training fleet's fault runs; None: every cell (fault_cells()).
+    fault_cases: tuple[tuple[str, float], ...] | None = None
+    trend_cases: tuple[tuple[str, float], ...] | None = None
+    training_fault_cases: tuple[tuple[str, float], ...] | None = None
+    trend_corners: tuple[Corner, ...] | None = None  # of the trend sequences; None: `corners`
+    training_corners: tuple[Corner, ...] | None = None  # of the training fleet's fault runs; None: `corners`
+    sensor_damages: tuple[str, ...] | None = None  # None: every SENSOR_DAMAGE
+    stop_runs: int = 0  # per wagon and load: healthy runs with one or two stops (draw_conditions)
+    stop_s: float = 600.0
+    standing_runs: int = 0  # per wagon and load: the wagon stands the whole run
+    standing_s: float = 300.0
 
     @classmethod
     def default(cls) -> EvaluationPlan:
@@ -346,11 +313,14 @@ class EvaluationPlan:
         )  # fmt: skip
 
     def fleet(self) -> tuple[Wagon, ...]:
-        return tuple(make_wagon(f"wagon {i + 1}", zlib.crc32(f"{self.fleet_seed}|evaluation|{i}".encode())) for i in range(self.n_wagons))
+        return tuple(
+            make_wagon(f"wagon {i + 1}", zlib.crc32(f"{self.fleet_seed}|evaluation|{i}".encode()), self.model) for i in range(self.n_wagons)
+        )
 
     def training_fleet(self) -> tuple[Wagon, ...]:
         return tuple(
-            make_wagon(f"training wagon {i + 1}", zlib.crc32(f"{self.fleet_seed}|training|{i}".encode())) for i in range(self.n_training_wagons)
+            make_wagon(f"training wagon {i + 1}", zlib.crc32(f"{self.fleet_seed}|training|{i}".encode()), self.model)
+            for i in range(self.n_training_wagons)
         )
 
     def runs(self) -> tuple[RunSpec, ...]:
@@ -359,32 +329,48 @@ class EvaluationPlan:
             for load in self.loads:
                 out += [RunSpec("calibration", w, load, HEALTHY, 1.0, None, r, self.calibration_s) for r in range(self.calibration_runs)]
                 out += [RunSpec("healthy", w, load, HEALTHY, 1.0, None, r, self.healthy_s) for r in range(self.healthy_runs)]
-        out += self._fault_runs("fault", self.n_wagons, self.fault_runs, self.lead_in_s, self.lead_in_s + self.fault_s)
+        out += self._fault_runs("fault", self.n_wagons, self.fault_runs, self.lead_in_s, self.lead_in_s + self.fault_s, self.fault_cases)
         out += self._trend_runs()
         turn = 0
-        for damage in SENSOR_DAMAGE:
+        # In SENSOR_DAMAGE's order, so that a damage added at its end leaves the others' wagons.
+        for damage in (d for d in SENSOR_DAMAGE if self.sensor_damages is None or d in self.sensor_damages):
             for load in self.loads:
                 for r in range(self.sensor_runs):
                     out.append(RunSpec("sensor", turn % self.n_wagons, load, HEALTHY, 1.0, None, r, self.sensor_s, damage=damage))
                     turn += 1
+        for w in range(self.n_wagons):
+            for load in self.loads:
+                out += [RunSpec("stops", w, load, HEALTHY, 1.0, None, r, self.stop_s) for r in range(self.stop_runs)]
+                out += [RunSpec("standing", w, load, HEALTHY, 1.0, None, r, self.standing_s) for r in range(self.standing_runs)]
         for w in range(self.n_training_wagons):
             for load in self.loads:
                 out += [RunSpec("train-healthy", w, load, HEALTHY, 1.0, None, r, self.training_healthy_s) for r in range(self.training_healthy_runs)]
-        out += self._fault_runs("train-fault", self.n_training_wagons, self.training_fault_runs, 0.0, self.training_fault_s)
+        out += self._fault_runs(
+            "train-fault", self.n_training_wagons, self.training_fault_runs, 0.0, self.training_fault_s, self.training_fault_cases, self.training_corners
+        )
         return tuple(out)
 
     def _trend_runs(self) -> list[RunSpec]:
         """One sequence per case, severity and corner: a healthy lead-in, the fault appears, and the
         same wagon runs on with it over trend_runs runs of other tracks and speeds."""
         out = []
-        for i, run in enumerate(self._fault_runs("trend", self.n_wagons, 1, self.lead_in_s, self.trend_run_s)):
+        for i, run in enumerate(self._fault_runs("trend", self.n_wagons, 1, self.lead_in_s, self.trend_run_s, self.trend_cases, self.trend_corners)):
             # Every sequence on another wagon than the single fault run of its cell and turn.
             wagon = (i + self.n_wagons // 2) % self.n_wagons
             for k in range(self.trend_runs):
                 out.append(dataclasses.replace(run, wagon=wagon, number=k, onset_s=self.lead_in_s if k == 0 else 0.0))
         return out
 
-    def _fault_runs(self, role: str, n_wagons: int, per_cell: int, onset_s: float, duration_s: float) -> list[RunSpec]:
+    def _fault_runs(
+        self,
+        role: str,
+        n_wagons: int,
+        per_cell: int,
+        onset_s: float,
+        duration_s: float,
+        cases: Sequence[tuple[str, float]] | None = None,
+        corners: Sequence[Corner] | None = None,
+    ) -> list[RunSpec]:
         out = []
         turn = 0  # cells go round the fleet so that every wagon carries every kind of fault
         for key, severities in fault_cells().items():
@@ -392,7 +378,9 @@ class EvaluationPlan:
             if load not in self.loads:
                 continue
             for severity in severities:
-                for corner in self.corners:
+                if cases is not None and (key, severity) not in cases:
+                    continue
+                for corner in self.corners if corners is None else corners:
                     for r in range(per_cell):
                         out.append(RunSpec(role, turn % n_wagons, load, key, severity, corner, r, duration_s, onset_s))
                         turn += 1
@@ -427,8 +415,9 @@ def scenario_for(run: RunSpec, wagon: Wagon, fs_hz: float, geometry: BogieGeomet
         fault_onset_s=run.onset_s if run.key != HEALTHY else 0.0,
         fs_hz=fs_hz,
         geometry=sensors,
-        sensor=wagon.sensor,
+        sensor=wagon.scenario_sensor,
         parameters=wagon.parameters,
+        model=wagon.model,
     )
 
 

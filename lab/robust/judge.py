@@ -11,7 +11,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from bogiemon.daemon.calibrate import calibrate_windows, fragment
+from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import BogiemonConfig, validate_config
 from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
 from bogiemon.detection import WindowIndicators
@@ -23,11 +23,14 @@ Progress = Callable[[float], None]
 def with_fragment(config: BogiemonConfig, text: str) -> BogiemonConfig:
     """The config with a calibration fragment included (a named load state replaces its set)."""
     data = config.model_dump(mode="json")
-    frag = tomllib.loads(text)["decision"]
-    for load, per in frag.get("thresholds", {}).items():
-        data["decision"]["thresholds"][load] = per
-    for load, baseline in frag.get("fused", {}).items():
-        data["decision"]["fused"][load] = baseline
+    parsed = tomllib.loads(text)
+    frag = parsed["decision"]
+    for section in ("thresholds", "fused", "load_states"):
+        for load, per in frag.get(section, {}).items():
+            data["decision"][section][load] = per
+    if "load_discriminant" in frag:
+        data["decision"]["load_discriminant"] = frag["load_discriminant"]
+    data["health"].update(parsed.get("health", {}))  # the structure learned at commissioning
     return validate_config(data, "calibrated config")
 
 
@@ -72,12 +75,17 @@ class DaemonMethod:
     calibrated: bool
     true_load: bool = False
 
-    def commission(self, calibration: Mapping[str, Sequence[WindowIndicators]]) -> Commissioned:
-        """Set up for one wagon from the windows of its calibration runs, per load state."""
+    def commission(self, calibration: Mapping[str, Sequence[Sequence[WindowIndicators]]]) -> Commissioned:
+        """Set up for one wagon from its calibration runs' windows, per load state (each load from
+        its own recordings, as the README's commissioning asks)."""
         config = self.config
-        if self.calibrated:
-            for load, windows in sorted(calibration.items()):
-                config = with_fragment(config, fragment(calibrate_windows(windows, config, load)))
+        if self.calibrated and calibration:
+            parts = []
+            for load, runs in sorted(calibration.items()):
+                windows = [w for run in runs for w in run]
+                numbers = [i for i, run in enumerate(runs) for _ in run]
+                parts.append(calibrate_windows(windows, config, load, runs=numbers))
+            config = with_fragment(config, fragment(combine_loads(parts, config)))
         return Commissioned(config.monitor_settings(), self.true_load)
 
 
@@ -166,9 +174,9 @@ def judge_runs(data: EvaluationData, method: DaemonMethod, progress: Progress | 
     total = sum(r.run.role in ("healthy", "fault", "sensor", "trend") for r in data.runs) or 1
     done = 0
     for w in range(len(data.fleet)):
-        calibration: dict[str, list[WindowIndicators]] = {}
+        calibration: dict[str, list[tuple[WindowIndicators, ...]]] = {}
         for r in data.select(role="calibration", wagon=w):
-            calibration.setdefault(r.run.load, []).extend(r.windows)
+            calibration.setdefault(r.run.load, []).append(r.windows)
         commissioned = method.commission(calibration)
         for group in sequences(data, w):
             judged = commissioned.judge([r.windows for r in group], group[0].run.load)

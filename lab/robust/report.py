@@ -374,7 +374,7 @@ def _readme(
         "## The evaluation set",
         "",
         f"- **Fleet**: {plan.n_wagons} simulated wagons for the evaluation and {plan.n_training_wagons} other wagons "
-        "for training the shipped models, each drawn from its own seed (lab/robust/fleet.py states every spread): "
+        "for training the shipped models, each drawn from its own seed (lab/robust/wagons.py states every spread): "
         "masses and inertias +/-10 %, coil springs +/-5 % per wagon and per corner, dampers' Fs +/-10 % per wagon and per "
         "corner, stick and side-bearer stiffness +/-10 % and +/-20 %, sensors with gain +/-3 %, bias +/-0.3 m/s^2, "
         "noise 0.005-0.03 m/s^2 and 16-bit quantisation.",

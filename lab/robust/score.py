@@ -17,7 +17,12 @@ Every figure of docs/robust comes from here, by rules fixed before the results w
 - CORNER AND KIND: of the detected runs, the share whose diagnosis names the fault's corner and
   kind; "unknown" counts as wrong, and its share is given.
 - SENSOR FAULTS: a damaged-sensor run is recognised when a SENSOR_FAULT names the expected problem
-  on every expected channel; it must never raise SUSPECTED or CONFIRMED.
+  on every expected channel; it must never raise SUSPECTED or CONFIRMED. A SENSOR_FAULT in a
+  healthy test run is false (per run, as the SUSPECTED runs).
+- QUIET RUNS (stops and starts, standing): healthy running that must raise no SUSPECTED or
+  CONFIRMED; per role the runs that did, and those with a (false) SENSOR_FAULT.
+- The horizon of DETECTED is score_method's `horizon_s` (DETECTION_HORIZON_S unless given); a
+  sequence cell also counts its sequences confirmed within any horizon (SequenceCell.within).
 """
 
 from __future__ import annotations
@@ -79,6 +84,10 @@ class SequenceCell:
     def rate(self) -> float:
         return self.detected / self.sequences if self.sequences else math.nan
 
+    def within(self, horizon_s: float) -> int:
+        """Sequences confirmed within horizon_s of running with the fault."""
+        return sum(t <= horizon_s + 1e-9 for t in self.times_s)
+
     @property
     def median_time_s(self) -> float:
         return statistics.median(self.times_s) if self.times_s else math.nan
@@ -92,6 +101,22 @@ class SensorScore:
     flagged: int  # any SENSOR_FAULT at all
     suspension_runs: int  # runs with a SUSPECTED or CONFIRMED (must be 0)
     problems: dict[str, int]  # "a1:inverted" -> runs naming it
+    channels_named: int = 0  # a SENSOR_FAULT named every expected channel, whatever the problem
+
+
+@dataclass(frozen=True)
+class QuietScore:
+    """The runs of one quiet role ("stops", "standing"): healthy running that must stay quiet."""
+
+    role: str
+    runs: int
+    hours: float
+    suspension_runs: int  # runs with a SUSPECTED or CONFIRMED (must be 0)
+    confirmed_runs: int
+    sensor_fault_runs: int  # runs with a SENSOR_FAULT (false: the sensors are sound)
+    problems: dict[str, int]  # "a1:flat" -> runs naming it
+    windows: int
+    judged_windows: int
 
 
 @dataclass(frozen=True)
@@ -113,6 +138,18 @@ class MethodScore:
     sensors: tuple[SensorScore, ...] = ()
     sequence_cells: tuple[SequenceCell, ...] = ()
     sequence_lead_in_alarms: int = 0
+    detection_horizon_s: float = DETECTION_HORIZON_S  # of `cells`' DETECTED
+    healthy_suspected_runs: int = 0  # healthy runs with a SUSPECTED
+    healthy_sensor_fault_runs: int = 0  # healthy runs with a (false) SENSOR_FAULT
+    healthy_problems: dict[str, int] = field(default_factory=dict)  # "a1:flat" -> healthy runs naming it
+    quiet: tuple[QuietScore, ...] = ()
+    load_all_windows: dict[str, int] = field(default_factory=dict)  # true load -> every window, judged or not
+
+    def quiet_role(self, role: str) -> QuietScore | None:
+        return next((q for q in self.quiet if q.role == role), None)
+
+    def sensor(self, damage: str) -> SensorScore | None:
+        return next((s for s in self.sensors if s.damage == damage), None)
 
     def sequence_cell(self, key: str, severity: float) -> SequenceCell | None:
         return next((c for c in self.sequence_cells if c.key == key and c.severity == severity), None)
@@ -133,8 +170,18 @@ class MethodScore:
         return sum(p[1] for p in pairs) / n if n else math.nan
 
 
-def _detected(r: RunResult) -> bool:
-    return r.confirmed_s is not None and r.confirmed_s - r.run.onset_s <= DETECTION_HORIZON_S + 1e-9
+def _detected(r: RunResult, horizon_s: float = DETECTION_HORIZON_S) -> bool:
+    return r.confirmed_s is not None and r.confirmed_s - r.run.onset_s <= horizon_s + 1e-9
+
+
+def _named(runs: Sequence[RunResult]) -> dict[str, int]:
+    """"a1:flat" -> runs whose SENSOR_FAULTs named it, most named first."""
+    named: dict[str, int] = {}
+    for r in runs:
+        for channel, found in r.sensor_problems.items():
+            for p in found:
+                named[f"{channel}:{p}"] = named.get(f"{channel}:{p}", 0) + 1
+    return dict(sorted(named.items(), key=lambda kv: -kv[1]))
 
 
 def _faulty_ratios(r: RunResult, window_s: float) -> list[float]:
@@ -165,13 +212,28 @@ def _sequence_cells(results: Sequence[SequenceResult]) -> list[SequenceCell]:
     return out
 
 
+QUIET_ROLES = ("stops", "standing")
+# The runs whose windows count for the load state: running of the wagon with sound sensors.
+LOAD_ROLES = ("healthy", "fault", "stops")
+
+
 def score_method(
-    data: EvaluationData, method: str, description: str, results: Sequence[RunResult], sequences: Sequence[SequenceResult] = ()
+    data: EvaluationData,
+    method: str,
+    description: str,
+    results: Sequence[RunResult],
+    sequences: Sequence[SequenceResult] = (),
+    horizon_s: float = DETECTION_HORIZON_S,
 ) -> MethodScore:
+    """Every figure of one method: `results` are its judged test runs (the quiet roles' too, when
+    the plan has them), `sequences` its trend sequences; a fault run is DETECTED when confirmed
+    within horizon_s of running with the fault."""
     window_s = data.settings.window_s
     cells: dict[tuple[str, float], list[RunResult]] = {}
     healthy, sensor = [], []
+    quiet: dict[str, list[RunResult]] = {}
     load_windows: dict[str, list[int]] = {}
+    load_all: dict[str, int] = {}
     for r in results:
         if r.run.role == "fault":
             cells.setdefault((r.run.key, r.run.severity), []).append(r)
@@ -179,19 +241,22 @@ def score_method(
             healthy.append(r)
         elif r.run.role == "sensor":
             sensor.append(r)
-        if r.run.role in ("healthy", "fault"):
+        elif r.run.role in QUIET_ROLES:
+            quiet.setdefault(r.run.role, []).append(r)
+        if r.run.role in LOAD_ROLES:
             counts = load_windows.setdefault(r.run.load, [0, 0])
             judged = [ld for ld in r.loads if ld is not None]
             counts[0] += len(judged)
             counts[1] += sum(ld == r.run.load for ld in judged)
+            load_all[r.run.load] = load_all.get(r.run.load, 0) + len(r.loads)
     cell_scores = []
     for (key, severity), runs in sorted(cells.items()):
-        detected = [r for r in runs if _detected(r)]
+        detected = [r for r in runs if _detected(r, horizon_s)]
         by_corner: dict[str, list[int]] = {}
         for r in runs:
             c = by_corner.setdefault(r.run.corner.value if r.run.corner else "-", [0, 0])
             c[0] += 1
-            c[1] += _detected(r)
+            c[1] += _detected(r, horizon_s)
         diagnoses = [(r, r.diagnosis or {}) for r in detected]
         ratios = [x for r in runs for x in _faulty_ratios(r, window_s)]
         cell_scores.append(
@@ -227,6 +292,26 @@ def score_method(
         sensors=tuple(_sensor_scores(sensor)),
         sequence_cells=tuple(_sequence_cells(sequences)),
         sequence_lead_in_alarms=sum(r.confirmed_before_onset for r in sequences),
+        detection_horizon_s=horizon_s,
+        healthy_suspected_runs=sum(r.suspected_count > 0 for r in healthy),
+        healthy_sensor_fault_runs=sum(bool(r.sensor_problems) for r in healthy),
+        healthy_problems=_named(healthy),
+        quiet=tuple(_quiet_score(role, runs) for role, runs in sorted(quiet.items())),
+        load_all_windows=dict(sorted(load_all.items())),
+    )
+
+
+def _quiet_score(role: str, runs: Sequence[RunResult]) -> QuietScore:
+    return QuietScore(
+        role=role,
+        runs=len(runs),
+        hours=sum(r.run.duration_s for r in runs) / 3600.0,
+        suspension_runs=sum(r.suspension_events > 0 for r in runs),
+        confirmed_runs=sum(r.confirmed_count > 0 for r in runs),
+        sensor_fault_runs=sum(bool(r.sensor_problems) for r in runs),
+        problems=_named(runs),
+        windows=sum(len(r.loads) for r in runs),
+        judged_windows=sum(ld is not None for r in runs for ld in r.loads),
     )
 
 
@@ -245,11 +330,6 @@ def _sensor_scores(results: Sequence[RunResult]) -> list[SensorScore]:
     out = []
     for damage, runs in by_damage.items():
         problem, channels = EXPECTED_PROBLEM[damage]
-        named: dict[str, int] = {}
-        for r in runs:
-            for channel, found in r.sensor_problems.items():
-                for p in found:
-                    named[f"{channel}:{p}"] = named.get(f"{channel}:{p}", 0) + 1
         out.append(
             SensorScore(
                 damage=damage,
@@ -257,7 +337,8 @@ def _sensor_scores(results: Sequence[RunResult]) -> list[SensorScore]:
                 recognised=sum(all(problem in r.sensor_problems.get(c, ()) for c in channels) for r in runs),
                 flagged=sum(bool(r.sensor_problems) for r in runs),
                 suspension_runs=sum(r.suspension_events > 0 for r in runs),
-                problems=dict(sorted(named.items(), key=lambda kv: -kv[1])),
+                problems=_named(runs),
+                channels_named=sum(all(r.sensor_problems.get(c) for c in channels) for r in runs),
             )
         )
     return out

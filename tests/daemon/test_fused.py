@@ -108,7 +108,7 @@ def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> N
     expected = next(k for k in range(200) if 10 * (1 - (1 - weight) ** (k + 1)) ** 2 >= 8.0)
     assert i == expected
     assert details["trigger"] == "trend"
-    assert details["diagnosis"]["corner"] == "leading-left" and details["diagnosis"]["kind"] == "spring-softer"
+    assert details["diagnosis"]["corner"] == "leading-left" and details["diagnosis"]["kind"] == "unknown"
     assert details["trend"] == pytest.approx(10 * (1 - (1 - weight) ** (i + 1)) ** 2)
     assert [k for _, k, _ in events][0] is EventKind.SUSPECTED
 

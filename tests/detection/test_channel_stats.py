@@ -1,11 +1,13 @@
 """Raw channel statistics per window: streaming equals direct, and each reads what it claims."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bogiemon.detection.channel_stats import WindowedChannelStats, channel_stats_reference, longest_run_reference
+from bogiemon.detection.channel_stats import ChannelStats, WindowedChannelStats, channel_stats_reference, longest_run_reference
 
 FS_HZ = 500.0
 
@@ -33,9 +35,9 @@ def test_streaming_channel_stats_equal_direct(hops: int, hop_n: int, n_hops: int
             assert got is None
             continue
         window = data[(h + 1 - hops) * hop_n : (h + 1) * hop_n]
-        want = channel_stats_reference(window, FS_HZ, clip_level_mps2=10.5)
-        for field in ("mean_mps2", "peak_abs_mps2", "repeat_fraction", "longest_run_s", "clipped_fraction"):
-            assert getattr(got, field) == pytest.approx(getattr(want, field), rel=1e-12, abs=1e-12), field
+        want = channel_stats_reference(window, FS_HZ, clip_level_mps2=10.5, hop_n=hop_n)
+        for field in dataclasses.fields(ChannelStats):
+            assert getattr(got, field.name) == pytest.approx(getattr(want, field.name), rel=1e-12, abs=1e-12), field.name
 
 
 def test_a_frozen_channel_repeats_every_sample_and_an_inverted_one_reads_minus_g() -> None:
@@ -77,3 +79,20 @@ def test_the_longest_run_reference_walks_the_samples() -> None:
     assert longest_run_reference(np.array([1.0, 1.0, 2.0, 2.0, 2.0, 1.0])) == 3
     assert longest_run_reference(np.array([np.nan, np.nan])) == 1  # NaN equals nothing
     assert longest_run_reference(np.array([5.0])) == 1
+
+
+def test_a_stop_inside_the_window_is_its_quietest_hop_whatever_the_gravity_and_bias() -> None:
+    # Six hops of 1 m/s^2 of running about gravity and a bias, the fourth standing (0.01 of noise).
+    rng = np.random.default_rng(7)
+    level = np.array([1.0, 1.0, 1.0, 0.01, 1.0, 1.0])
+    data = rng.standard_normal((6, 1000, 3)) * level[:, None, None] + [9.81, 9.5, 10.1]
+    stream = WindowedChannelStats(6, 1000, FS_HZ)
+    got = [stream.push_hop(hop) for hop in data][-1]
+    assert got is not None
+    assert got.hop_rms_min_mps2 == pytest.approx((0.01,) * 3, rel=0.1)
+    assert got.hop_rms_max_mps2 == pytest.approx((1.0,) * 3, rel=0.1)
+
+
+def test_a_record_built_without_hops_carries_no_hop_rms() -> None:
+    stats = ChannelStats((9.81,) * 3, (10.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
+    assert all(np.isnan(stats.hop_rms_min_mps2)) and all(np.isnan(stats.hop_rms_max_mps2))

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
+import pytest
 
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.drivers.recording import read_csv_recording, write_csv_recording
 from bogiemon.fleet import rows
-from bogiemon.fleet.analyze import analyze_day, day_tasks, read_partition
+from bogiemon.fleet.analyze import FORMAT, METADATA_KEY, analyze_day, day_tasks, is_done, read_partition
 from bogiemon.fleet.layout import scan_fleet
 from tests.fleet import tree
 
@@ -50,3 +53,17 @@ def test_overlapping_snapshots_give_each_sample_once(tmp_path: Path, runs: tree.
     assert np.all(np.diff(ends) > 0)  # no window twice
     assert result.samples == n  # every sample once
     assert set(table.column("recording").to_pylist()) == {"a_confirmed.csv.gz", "c_later.csv.gz"}
+
+
+def test_a_partition_of_an_older_format_is_redone_and_never_read_as_this_one(tmp_path: Path, runs: tree.Runs) -> None:
+    # A format change (e.g. new columns) must not be misread by `fleet judge` or skipped by the resume.
+    folder = tree.wagon(tmp_path / "fleet", "W1", commissioned=False)
+    tree.place(runs.healthy[0], folder, "2026-11-02", "06:00")
+    task = _task(tmp_path / "fleet", tmp_path / "windows")
+    analyze_day(task)
+    table = pq.read_table(task.path)
+    meta = json.loads(table.schema.metadata[METADATA_KEY])
+    pq.write_table(table.replace_schema_metadata({METADATA_KEY: json.dumps({**meta, "format": FORMAT - 1}).encode()}), task.path)
+    assert not is_done(task)
+    with pytest.raises(ValueError, match=f"written in format {FORMAT - 1}, this bogiemon reads {FORMAT}"):
+        read_partition(task.path)

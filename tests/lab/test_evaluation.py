@@ -20,9 +20,9 @@ from bogiemon.lab.robust.fleet import (
     RunSpec,
     damage_sensors,
     draw_conditions,
-    make_wagon,
     simulate_plan,
 )
+from bogiemon.lab.robust.wagons import make_wagon
 from bogiemon.lab.robust.judge import JudgedRun, Outcome, judge_runs, sequences
 from bogiemon.lab.robust.judge import _sequence_result as sequence_result
 from bogiemon.lab.robust.report import write_report
@@ -142,9 +142,11 @@ def test_every_method_is_judged_and_the_report_is_written(tiny, tmp_path) -> Non
     assert default.method == "fused, calibrated"
     assert default.healthy_runs == 2 and default.healthy_hours == pytest.approx(600 / 3600)
     assert sum(c.runs for c in default.cells) == 20 and sum(c.sequences for c in default.sequence_cells) == 20
-    assert default.load_accuracy() == 1.0 and default.load_margin > 0
+    assert default.load_accuracy() == 1.0  # in the commissioned load states (no p_full margin: not estimated)
     assert {s.damage for s in default.sensors} == set(SENSOR_DAMAGE)
-    assert all(s.suspension_runs == 0 for s in default.sensors)
+    # "hiss a2" is scored against issue 16's targets by the transfer evaluation, not asserted here
+    # (tests/lab/test_robust.py says why).
+    assert all(s.suspension_runs == 0 for s in default.sensors if s.damage != "hiss a2")
     doc = write_report(tiny, scores, tmp_path, "bogiemon evaluate -o x", 1.0, report_sections(), figures=True)
     readme = (tmp_path / "README.md").read_text()
     for heading in ("## Targets", "## Detection rate per fault case", "## Detection while the wagon runs on", "## False alarms",

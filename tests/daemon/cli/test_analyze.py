@@ -52,7 +52,7 @@ def test_analyze_json_has_every_field_and_the_file(recording: Path, config: Path
         "file", "start_s", "end_s", "i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm",
         "rms_mps2", "rms_bounce_mps2", "rms_pitch_radps2", "rms_roll_radps2", "channels", "spectra",
     }  # fmt: skip
-    assert set(records[0]["channels"]) == {"mean_mps2", "peak_abs_mps2", "repeat_fraction", "longest_run_s", "clipped_fraction"}
+    assert set(records[0]["channels"]) == {"mean_mps2", "peak_abs_mps2", "repeat_fraction", "longest_run_s", "clipped_fraction", "hop_rms_min_mps2", "hop_rms_max_mps2"}
     assert records[0]["file"] == str(recording)
     assert records[0] == {**records[5], "file": str(recording)}
 

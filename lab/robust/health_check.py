@@ -1,0 +1,280 @@
+"""Measures the sensor health checks (issue 16) on simulated runs of both wagon models: the gate on
+stops and starts, the noise checks, and the frame structure learned from the wagon.
+
+    .venv/bin/python -m bogiemon.lab.robust.health_check [--models a,b] [--wagons 6] [--runs 2]
+
+Every run is judged window by window by the daemon's own WindowJudge with the shipped default
+config (uncommissioned: no structure check in force), as a gateway would judge it. Printed:
+- the exponent a of the frame's RMS against speed (RMS ~ v^a), the physics of min_hop_rms_ratio;
+- healthy runs of varied wagons (lab/robust/wagons.py's spreads; model B: its one wagon with the
+  fleet's sensor errors) on ERRI low and high and FRA 4, 5 and 6 at 50-110 km/h: windows gated,
+  sensor faults (any is false), suspension events;
+- the same runs with white noise of NOISE_MPS2 at 500 Hz added to one channel, each channel in
+  turn: the runs reporting NOISY on that channel (and on another), and suspension events;
+- runs that stop and start again, and healthy running at walking pace on rough track;
+- the structure: learn_structure on each wagon's commissioning runs, then its other healthy runs
+  (false swapped/inverted with the learned structure) and its runs with two cables swapped or a
+  sensor upside down (found with the learned structure, not without).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from bogiemon.daemon.config import BogiemonConfig
+from bogiemon.daemon.events import EventKind
+from bogiemon.daemon.health import LONG_WAVE_PHASE_RAD, assess_window, learn_structure, rail_pair_coherence, same_rail_pair
+from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
+from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, WindowIndicators
+from bogiemon.lab.robust.fleet import HEALTHY, RunSpec, damage_sensors, draw_conditions, scenario_for
+from bogiemon.lab.robust.wagons import make_wagon
+from bogiemon.simulator import Scenario, SensorModel, SpeedProfile, simulate
+
+FS_HZ = 500.0
+NOISE_MPS2 = 0.4  # the trial's noisy sensor: white noise of this RMS per sample at 500 Hz
+SUSPENSION = {EventKind.SUSPECTED, EventKind.CONFIRMED}
+STOP_AND_START = "0:60,60:60,90:0,150:0,180:60,400:60"
+WAGON_SEED = 16_000  # this study's wagons: other seeds than the evaluation's
+
+
+@dataclass
+class RunOutcome:
+    windows: int = 0
+    judged: int = 0
+    gates: Counter[str] = field(default_factory=Counter)
+    problems: dict[str, set[str]] = field(default_factory=dict)  # channel -> problems reported in the run
+    suspension: Counter[str] = field(default_factory=Counter)
+
+
+def judge(windows: Sequence[WindowIndicators], settings: MonitorSettings) -> RunOutcome:
+    """One run through the daemon's WindowJudge, from a fresh state."""
+    judge_ = WindowJudge(settings)
+    out = RunOutcome()
+    for w in windows:
+        judged = judge_.judge(w)
+        out.windows += 1
+        out.judged += judged.judgement is not None
+        if judged.health.gate is not None:
+            out.gates[judged.health.gate.value] += 1
+        for channel, problems in judged.health.problems.items():
+            out.problems.setdefault(channel, set()).update(p.value for p in problems)
+        for e in judged.events:
+            if e.kind in SUSPENSION:
+                out.suspension[e.kind.value] += 1
+    return out
+
+
+def core_windows(accel: np.ndarray, settings: MonitorSettings) -> list[WindowIndicators]:
+    return IndicatorStream(settings.processing, settings.geometry, 0.0, settings.health.clip_level_mps2).process(accel)
+
+
+def run_spec(wagon: int, load: str, number: int, role: str = "healthy", duration_s: float = 600.0) -> RunSpec:
+    return RunSpec(role=role, wagon=wagon, load=load, key=HEALTHY, severity=1.0, corner=None, number=number, duration_s=duration_s)
+
+
+def run_scenario(model: str, wagon_index: int, spec: RunSpec, geometry: BogieGeometry) -> Scenario:
+    """The run's scenario on model A's varied wagon, or on model B's wagon with the same sensors,
+    track, speeds and direction."""
+    wagon = make_wagon(f"health-{wagon_index}", WAGON_SEED + wagon_index)
+    scenario = scenario_for(spec, wagon, FS_HZ, geometry)
+    if model == "b":
+        scenario = Scenario(
+            model="b", load=spec.load, speed=scenario.speed, track=scenario.track, duration_s=spec.duration_s,
+            seed=scenario.seed, fs_hz=FS_HZ, geometry=scenario.geometry, sensor=wagon.sensor,
+        )  # fmt: skip
+    return scenario
+
+
+def with_noise(accel: np.ndarray, channel: int, seed: int) -> np.ndarray:
+    out = accel.copy()
+    out[:, channel] += np.random.default_rng([seed, channel, 16]).normal(0.0, NOISE_MPS2, accel.shape[0])
+    return out
+
+
+def speed_exponents(model: str) -> list[str]:
+    """Per load and track: median channel RMS at steady speeds and the fitted exponent a."""
+    speeds = (20.0, 40.0, 60.0, 80.0, 110.0)
+    lines = []
+    for load in ("full", "tare"):
+        for track in ("erri-low", "fra-6", "fra-4"):
+            rms = []
+            for v in speeds:
+                scenario = Scenario(model=model, load=load, track=track, speed=SpeedProfile.constant(v), duration_s=40.0, seed=2,
+                                    sensor=SensorModel(noise_mps2=0.01))  # fmt: skip
+                a = simulate(scenario).accel_mps2[int(10 * FS_HZ) :]
+                rms.append(float(np.median(a.std(axis=0))))
+            exponent = float(np.polyfit(np.log(speeds), np.log(rms), 1)[0])
+            cells = " ".join(f"{v:g}:{r:.2f}" for v, r in zip(speeds, rms, strict=True))
+            lines.append(f"  {model} {load:4} {track:8}  RMS m/s^2 at km/h {cells}   a = {exponent:.2f}")
+    return lines
+
+
+@dataclass
+class Margins:
+    """What the healthy judged windows showed of the quantities the bounds stand on."""
+
+    windows: int = 0
+    premise: int = 0  # windows whose rail pair is within LONG_WAVE_PHASE_RAD
+    rail_multiple_min: float = 1.0  # the smallest multiple coherence of a rail-pair sensor there
+    hop_ratio_min: float = 1.0  # the smallest quietest-over-loudest hop RMS (median channel)
+
+    def add(self, windows: Sequence[WindowIndicators], settings: MonitorSettings) -> None:
+        i, k, _ = same_rail_pair(settings.geometry)
+        for w in windows:
+            if not assess_window(w, settings.health, geometry=settings.geometry).judgeable or w.spectra is None:
+                continue
+            self.windows += 1
+            hop = float(np.median(w.channels.hop_rms_min_mps2) / np.median(w.channels.hop_rms_max_mps2))
+            self.hop_ratio_min = min(self.hop_ratio_min, hop)
+            c = rail_pair_coherence(w.spectra.matrix(), settings.geometry)
+            if c is not None and c.phase_rad <= LONG_WAVE_PHASE_RAD:
+                self.premise += 1
+                self.rail_multiple_min = min(self.rail_multiple_min, c.multiple[i], c.multiple[k])
+
+    def line(self) -> str:
+        return (f"judged windows {self.windows}, of them with long waves (the premise) {self.premise}: smallest multiple "
+                f"coherence of a rail-pair sensor {self.rail_multiple_min:.3f}; smallest hop RMS ratio {self.hop_ratio_min:.2f}")
+
+
+@dataclass
+class Tally:
+    runs: int = 0
+    named: int = 0  # NOISY on the noisy channel
+    also_other: int = 0  # NOISY (or another problem) on another channel too
+    suspension: int = 0  # a SUSPECTED or CONFIRMED in the run
+    suspension_unreported: int = 0  # ... in a run whose noise was never reported
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", default="a,b", help="wagon models, comma-separated (default a,b)")
+    parser.add_argument("--wagons", type=int, default=6, help="wagons per model (default 6)")
+    parser.add_argument("--runs", type=int, default=2, help="healthy 10-min runs per wagon and load (default 2)")
+    parser.add_argument("--commissioning", type=int, default=4, help="commissioning runs per wagon and load (default 4)")
+    args = parser.parse_args(argv)
+    config = BogiemonConfig()
+    settings = config.monitor_settings()
+    geometry = settings.geometry
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+
+    print("RMS of the frame against speed (median channel, steady speed, 30 s):")
+    for model in models:
+        for line in speed_exponents(model):
+            print(line)
+
+    for model in models:
+        print(f"\nMODEL {model.upper()}")
+        healthy = Tally()
+        gate_counts: Counter[str] = Counter()
+        windows_total = 0
+        false_faults: list[str] = []
+        per_track: dict[str, Tally] = {}
+        noisy = {c: Tally() for c in range(3)}
+        structure_lines: list[str] = []
+        margins = Margins()
+        for wagon in range(args.wagons):
+            for load in ("full", "tare"):
+                # Commissioning: the wagon's own healthy runs, what learn_structure learns from.
+                commissioning = []
+                for n in range(args.commissioning):
+                    spec = run_spec(wagon, load, n, role="calibration")
+                    accel = simulate(run_scenario(model, wagon, spec, geometry)).accel_mps2
+                    commissioning += [w for w in core_windows(accel, settings) if assess_window(w, settings.health, geometry=geometry).judgeable]
+                fit = learn_structure(commissioning, geometry)
+                learned = replace(settings, health=fit.applied_to(settings.health))
+                structure_lines.append(
+                    f"  wagon {wagon} {load:4}: {fit.windows} windows, in force {list(fit.checks)}, smallest "
+                    + ", ".join(f"{c} {v:.3f}" for c, v in fit.smallest.items())
+                )
+                for n in range(args.runs):
+                    spec = run_spec(wagon, load, 100 + n)
+                    scenario = run_scenario(model, wagon, spec, geometry)
+                    accel = simulate(scenario).accel_mps2
+                    windows = core_windows(accel, settings)
+                    margins.add(windows, settings)
+                    out = judge(windows, settings)
+                    windows_total += out.windows
+                    gate_counts.update(out.gates)
+                    healthy.runs += 1
+                    healthy.suspension += bool(out.suspension)
+                    if out.problems:
+                        false_faults.append(f"{scenario.track} {load} {out.problems}")
+                    with_learned = judge(windows, learned)
+                    if with_learned.problems:
+                        structure_lines.append(f"    healthy run {n} with the learned structure: {with_learned.problems} (false)")
+                    cond = draw_conditions(spec)
+                    for channel in range(3):
+                        noisy_out = judge(core_windows(with_noise(accel, channel, spec.seed), settings), settings)
+                        reported = "noisy" in noisy_out.problems.get(f"a{channel + 1}", set())
+                        other = any(ch != f"a{channel + 1}" for ch in noisy_out.problems)
+                        for tally in (noisy[channel], per_track.setdefault(cond.track, Tally())):
+                            tally.runs += 1
+                            tally.named += reported
+                            tally.also_other += other
+                            tally.suspension += bool(noisy_out.suspension)
+                            tally.suspension_unreported += bool(noisy_out.suspension) and not noisy_out.problems
+                    if n == 0:  # the wagon's cables swapped and a sensor upside down, with and without its structure
+                        for damage in ("swapped a1-a2", "swapped a2-a3", "inverted a3"):
+                            damaged = core_windows(damage_sensors(accel, damage, FS_HZ, spec.seed), settings)
+                            structure_lines.append(
+                                f"    {damage}: uncommissioned {sorted(judge(damaged, settings).problems.items())}, "
+                                f"learned {sorted(judge(damaged, learned).problems.items())}"
+                            )
+        print(f"healthy 10-min runs: {healthy.runs}, windows {windows_total}, gated {dict(gate_counts)}")
+        print(f"  runs with a sensor fault (false): {len(false_faults)} {false_faults}")
+        print(f"  runs with a suspension event: {healthy.suspension}")
+        print(f"  {margins.line()}")
+        print(f"white noise of {NOISE_MPS2} m/s^2 on one channel, each in turn:")
+        for channel, t in noisy.items():
+            print(f"  a{channel + 1}: runs {t.runs}, NOISY on a{channel + 1} {t.named} ({100 * t.named / max(t.runs, 1):.0f} %), "
+                  f"a problem on another channel {t.also_other}, suspension events {t.suspension} "
+                  f"(of them with the noise unreported {t.suspension_unreported})")  # fmt: skip
+        for track, t in sorted(per_track.items()):
+            print(f"  {track:8}: runs {t.runs}, noisy channel named {t.named} ({100 * t.named / max(t.runs, 1):.0f} %), "
+                  f"suspension events {t.suspension}")  # fmt: skip
+        print("stops and starts (" + STOP_AND_START + "), healthy:")
+        for load in ("full", "tare"):
+            for track in ("erri-low", "fra-6", "fra-4"):
+                speed = SpeedProfile.parse(STOP_AND_START)
+                scenario = Scenario(model=model, load=load, track=track, speed=speed, duration_s=400.0, seed=5, fs_hz=FS_HZ,
+                                    sensor=SensorModel(noise_mps2=0.01, quantum_mps2=2 * 16 * 9.80665 / 65536))  # fmt: skip
+                windows = core_windows(simulate(scenario).accel_mps2, settings)
+                out = judge(windows, settings)
+                print(f"  {load:4} {track:8}: windows {out.windows}, judged {out.judged}, gated {dict(out.gates)}, "
+                      f"sensor problems {out.problems}, suspension {dict(out.suspension)}")  # fmt: skip
+        print("slow running, healthy (300 s at a steady speed):")
+        slow = Margins()
+        for load in ("full", "tare"):
+            for track in ("fra-4", "erri-low"):
+                for v in (10.0, 15.0, 20.0, 30.0):
+                    scenario = Scenario(model=model, load=load, track=track, speed=SpeedProfile.constant(v), duration_s=300.0,
+                                        seed=int(v), fs_hz=FS_HZ, sensor=SensorModel(noise_mps2=0.01, quantum_mps2=0.0048))  # fmt: skip
+                    windows = core_windows(simulate(scenario).accel_mps2, settings)
+                    slow.add(windows, settings)
+                    out = judge(windows, settings)
+                    print(f"  {load:4} {track:8} {v:g} km/h: windows {out.windows}, judged {out.judged}, gated {dict(out.gates)}, "
+                          f"sensor problems {out.problems or '-'}")  # fmt: skip
+        print(f"  {slow.line()}")
+        if model == "a":  # the fault cases are model A's tables
+            print("suspension faults (a broken coil 150 s into the run), healthy sensors:")
+            for key in ("type_a.full.rear_outer", "type_a.full.front_outer", "type_a.tare.front_outer"):
+                for corner in Corner:
+                    spec = RunSpec(role="fault", wagon=0, load=key.split(".")[1], key=key, severity=0.0, corner=corner, number=0,
+                                   duration_s=420.0, onset_s=150.0)  # fmt: skip
+                    scenario = scenario_for(spec, make_wagon("health-0", WAGON_SEED), FS_HZ, geometry)
+                    out = judge(core_windows(simulate(scenario).accel_mps2, settings), settings)
+                    print(f"  {key} 0 at {corner.value}: windows {out.windows}, sensor problems {out.problems or '-'}, "
+                          f"suspension {dict(out.suspension) or '-'}")  # fmt: skip
+        print("the structure learned per wagon and load:")
+        for line in structure_lines:
+            print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

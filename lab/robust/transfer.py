@@ -1,0 +1,591 @@
+"""`bogiemon evaluate --transfer`: every prior fitted on one wagon model, judged on the other (issue 16).
+
+    plans = transfer_plans("default")                   # the same plan on wagon models A and B
+    doc = run_transfer(config, "docs/robust/transfer", command="bogiemon evaluate --transfer ...")
+
+bogiemon ships priors fitted on its own simulator (config/load_model.toml, fused_model.toml,
+fault_signatures.toml). Here they are fitted, by the rule `make evaluate` uses (lab/modelfit.py),
+on the training fleet of each wagon model in turn (model A: simulator/vehicle.py; model B:
+simulator/model_b, formulated independently), written into a temporary folder and given to the
+daemon as decision.models_dir. The daemon's default method (fused, calibrated: each wagon
+commissioned per load on its own calibration runs) then judges the evaluation fleets of both
+models: A's priors on A and on B, B's on B and on A. The targets are issue 16's, stated here
+before any result; they are about the model the priors were NOT fitted on, and the same-model
+judgements beside them give the transfer gap (cross-model minus same-model, on one evaluation
+fleet). Every figure is a count of runs, windows or events; TARGETS says how each is counted.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from bogiemon.daemon.config import BogiemonConfig
+from bogiemon.detection import Corner
+from bogiemon.lab.robust.evaluate import EvaluateError, daemon_methods, fit_and_write_models, read_cache, reuse, write_cache
+from bogiemon.lab.robust.fleet import HISS_RMS_MPS2, SENSOR_DAMAGE, EvaluationData, EvaluationPlan, simulate_plan
+from bogiemon.lab.robust.judge import DaemonMethod, RunResult, judge_runs, with_overrides
+from bogiemon.lab.robust.judge import _result as run_result
+from bogiemon.lab.robust.report import FULL_SPRINGS, TARE_OUTER, case_label, pooled, score_json
+from bogiemon.lab.robust.score import QUIET_ROLES, MethodScore, score_method
+
+Progress = Callable[[float], None]
+
+MODELS = ("a", "b")
+FAULT_HORIZON_S = 600.0  # "confirmed within 10 min of running" with a broken spring
+TREND_HORIZON_S = 3600.0  # "within an hour of running" for the smaller faults
+NOISY = "hiss a2"  # the noisy sensor of the targets (lab/robust/fleet.py SENSOR_DAMAGE)
+NOISY_CHANNEL = "a2"
+
+BROKEN_FULL = tuple((k, 0.0) for k in FULL_SPRINGS)
+BROKEN_TARE_OUTER = tuple((k, 0.0) for k in TARE_OUTER)
+SPRINGS_50 = tuple((k, 0.5) for k in FULL_SPRINGS)
+SPRINGS_200 = tuple((k, 2.0) for k in FULL_SPRINGS)
+FRICTION_50 = (("type_b.full", 0.5),)
+FRICTION_150 = (("type_b.full", 1.5),)
+
+
+# --------------------------------------------------------------------------------------------
+# The plans
+
+
+def transfer_plan(model: str, size: str = "default") -> EvaluationPlan:
+    """The transfer's plan on one wagon model; `size` "quick" (a test's), "default" or "full".
+
+    Only what the targets need: single runs of the broken springs (a lead-in, then 10 min with the
+    fault), trend sequences of the smaller faults (an hour of running with the fault over several
+    runs), stops, standing and the noisy sensor; the training fleet runs every fault cell (the
+    signatures need every corner and class).
+    """
+    common: dict[str, Any] = dict(
+        model=model, lead_in_s=150.0, fault_s=FAULT_HORIZON_S, fault_cases=BROKEN_FULL + BROKEN_TARE_OUTER,
+        trend_cases=SPRINGS_50 + SPRINGS_200 + FRICTION_50 + FRICTION_150, sensor_damages=(NOISY,),
+    )  # fmt: skip
+    sizes: dict[str, dict[str, Any]] = {
+        # 100 h of healthy test running per model across both loads: the issue's figure.
+        "full": dict(
+            n_wagons=10, n_training_wagons=8, calibration_runs=12, calibration_s=600.0, healthy_runs=30, healthy_s=600.0,
+            fault_runs=3, trend_runs=6, trend_run_s=630.0, training_healthy_runs=30, training_healthy_s=600.0,
+            training_fault_runs=2, training_fault_s=300.0, sensor_runs=10, sensor_s=600.0, stop_runs=2, stop_s=600.0,
+            standing_runs=1, standing_s=600.0,
+        ),
+        # What runs in about 35 min on the project's 2-core machine (the full plan takes about 85):
+        # 30 h of healthy test running per model, the trend sequences on one diagonal (a corner with
+        # a sensor and the one without), 80 min of commissioning per load.
+        "default": dict(
+            n_wagons=6, n_training_wagons=5, calibration_runs=8, calibration_s=600.0, healthy_runs=15, healthy_s=600.0,
+            fault_runs=1, trend_runs=5, trend_run_s=750.0, training_healthy_runs=18, training_healthy_s=600.0,
+            training_fault_runs=1, training_fault_s=300.0, sensor_runs=5, sensor_s=600.0, stop_runs=1, stop_s=600.0,
+            standing_runs=1, standing_s=300.0, trend_corners=(Corner.LEADING_LEFT, Corner.TRAILING_RIGHT),
+        ),
+        # A test's: one wagon, short runs, the two corners of one diagonal (the trend on one), few training cells.
+        "quick": dict(
+            n_wagons=1, n_training_wagons=2, calibration_runs=3, calibration_s=300.0, healthy_runs=2, healthy_s=300.0,
+            fault_runs=1, fault_s=300.0, fault_cases=(("type_a.full.rear_outer", 0.0), ("type_a.tare.rear_outer", 0.0)),
+            trend_runs=2, trend_run_s=300.0, trend_cases=FRICTION_50, training_healthy_runs=5, training_healthy_s=300.0,
+            training_fault_runs=1, training_fault_s=300.0,
+            training_fault_cases=(("type_a.full.rear_outer", 0.0), ("type_a.tare.rear_outer", 0.0), ("type_b.full", 0.5)),
+            sensor_runs=1, sensor_s=300.0, stop_runs=1, stop_s=400.0, standing_runs=1, standing_s=200.0,
+            corners=(Corner.LEADING_LEFT, Corner.TRAILING_RIGHT), trend_corners=(Corner.LEADING_LEFT,),
+        ),
+    }  # fmt: skip
+    if size not in sizes:
+        raise ValueError(f"unknown transfer plan size '{size}'")
+    return EvaluationPlan(name=f"transfer-{size}", **{**common, **sizes[size]})
+
+
+def transfer_plans(size: str = "default") -> dict[str, EvaluationPlan]:
+    return {m: transfer_plan(m, size) for m in MODELS}
+
+
+def healthy_hours(plan: EvaluationPlan) -> float:
+    return sum(r.duration_s for r in plan.runs() if r.role == "healthy") / 3600.0
+
+
+# Simulated seconds of model B per second of model A's (its kernel is slower); only weighs the
+# progress fraction.
+_COST = {"a": 1.0, "b": 2.7}
+
+
+def load_or_simulate_models(
+    plans: Mapping[str, EvaluationPlan], config: BogiemonConfig, data_file: str | Path | None, progress: Progress | None = None
+) -> dict[str, EvaluationData]:
+    """Each model's simulated windows: from data_file where it holds that model's plan at these
+    settings (its runs that the plan shares reused otherwise; a file of `bogiemon evaluate --data`
+    gives model A's), the rest simulated; both written back to the file when one is named."""
+    path = Path(data_file) if data_file else None
+    cached = read_cache(path) if path is not None and path.exists() else None
+    by_model = cached if isinstance(cached, dict) else {} if cached is None else {cached.plan.model: cached}
+    weights = {m: _COST.get(m, 1.0) * sum(r.duration_s for r in p.runs()) for m, p in plans.items()}
+    total = sum(weights.values()) or 1.0
+    out: dict[str, EvaluationData] = {}
+    done, simulated = 0.0, False
+    for model, plan in plans.items():
+        found = reuse(by_model.get(model), plan, config)
+        if isinstance(found, EvaluationData):
+            out[model] = found
+        else:
+            base, share = done / total, weights[model] / total
+            part = None if progress is None else (lambda f, b=base, s=share: progress(b + s * f))
+            out[model] = simulate_plan(plan, config.processing_settings(), config.bogie_geometry(), part, have=found)
+            simulated = True
+        done += weights[model]
+    if path is not None and simulated:
+        write_cache(path, out)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Judging
+
+
+def judge_quiet(data: EvaluationData, method: DaemonMethod) -> list[RunResult]:
+    """The stops and standing runs, each alone on its commissioned wagon (judge_runs judges the
+    healthy, fault, sensor and trend runs)."""
+    out = []
+    for w in range(len(data.fleet)):
+        runs = data.select(role=set(QUIET_ROLES), wagon=w)
+        if not runs:
+            continue
+        calibration: dict[str, list[Any]] = {}
+        for r in data.select(role="calibration", wagon=w):
+            calibration.setdefault(r.run.load, []).append(r.windows)
+        commissioned = method.commission(calibration)
+        for r in runs:
+            (judged,) = commissioned.judge([r.windows], r.run.load)
+            out.append(run_result(r, judged))
+    return out
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """One of the four: the priors fitted on one model's training fleet, judged on a model's evaluation fleet."""
+
+    priors: str
+    evaluated: str
+    score: MethodScore
+
+    @property
+    def same_model(self) -> bool:
+        return self.priors == self.evaluated
+
+    @property
+    def label(self) -> str:
+        return f"{self.priors.upper()} priors on {self.evaluated.upper()}"
+
+
+def judge_transfer(
+    data: Mapping[str, EvaluationData], config: BogiemonConfig, models_dirs: Mapping[str, str | Path], progress: Progress | None = None
+) -> list[Judgement]:
+    """The daemon's default method with each model's priors on each model's evaluation fleet,
+    ordered by evaluation model: same model first, then the other's priors."""
+    pairs = [(p, e) for e in data for p in sorted(models_dirs, key=lambda m: m != e)]
+    out = []
+    for i, (priors, evaluated) in enumerate(pairs):
+        fleet = data[evaluated]
+        method = daemon_methods(fleet, with_overrides(config, {"models_dir": str(models_dirs[priors])}), paper=False)[-1]
+        part = None if progress is None else (lambda f, i=i: progress((i + f) / len(pairs)))
+        judged = judge_runs(fleet, method, part)
+        quiet = judge_quiet(fleet, method)
+        name = f"{method.name}, priors of model {priors.upper()}"
+        out.append(Judgement(priors, evaluated, score_method(fleet, name, method.description, [*judged.runs, *quiet], judged.sequences, FAULT_HORIZON_S)))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The targets
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One target's figure on one judgement: num of den (a share), or num events in den hours."""
+
+    num: int
+    den: float
+    value: float  # the share, or the number of events; NaN: nothing to count
+    text: str
+    met: bool | None  # None: nothing to judge
+
+
+@dataclass(frozen=True)
+class TransferTarget:
+    name: str
+    goal: float
+    at_most: bool  # the figure must stay at or below the goal (else reach it)
+    measure: Callable[[MethodScore], tuple[int, float]]  # (num, den)
+    events: bool = False  # num counts events in den hours (else runs or windows of den)
+
+    def figure(self, score: MethodScore) -> Figure:
+        num, den = self.measure(score)
+        if self.events:
+            text = f"{num} in {den:.1f} h" if den else "no running"
+            met = (num <= self.goal) if den else None
+            return Figure(num, den, float(num) if den else math.nan, text, met)
+        if not den:
+            return Figure(num, den, math.nan, "no runs", None)
+        value = num / den
+        met = value <= self.goal + 1e-12 if self.at_most else value >= self.goal - 1e-12
+        return Figure(num, den, value, f"{_pct(value)} ({num} of {int(den)})", met)
+
+    @property
+    def goal_text(self) -> str:
+        if self.events:
+            return f"<= {self.goal:g}"
+        return f"{'<=' if self.at_most else '>='} {_pct(self.goal)}"
+
+
+def _pct(x: float) -> str:
+    if not math.isfinite(x):
+        return "-"
+    return f"{100 * x:.0f} %" if x in (0.0, 1.0) else f"{100 * x:.1f} %" if abs(x) >= 0.001 else f"{100 * x:.2f} %"
+
+
+def _cells(score: MethodScore, cases: Sequence[tuple[str, float]]) -> list[Any]:
+    return [c for c in score.cells if (c.key, c.severity) in cases]
+
+
+def _sequences_within(score: MethodScore, cases: Sequence[tuple[str, float]]) -> tuple[int, float]:
+    present = [c for c in (score.sequence_cell(k, s) for k, s in cases) if c is not None]
+    return sum(c.within(TREND_HORIZON_S) for c in present), sum(c.sequences for c in present)
+
+
+def _corner(score: MethodScore, right: bool) -> tuple[int, float]:
+    cells = _cells(score, BROKEN_FULL + BROKEN_TARE_OUTER)
+    detected = sum(c.detected for c in cells)
+    if right:
+        return sum(c.corner_right for c in cells), detected
+    return sum(c.detected - c.corner_right - c.unknown_corner for c in cells), detected
+
+
+def _quiet(role: str) -> Callable[[MethodScore], tuple[int, float]]:
+    def measure(score: MethodScore) -> tuple[int, float]:
+        q = score.quiet_role(role)
+        return (q.suspension_runs, q.runs) if q is not None else (0, 0)
+
+    return measure
+
+
+def _noisy(what: str) -> Callable[[MethodScore], tuple[int, float]]:
+    def measure(score: MethodScore) -> tuple[int, float]:
+        s = score.sensor(NOISY)
+        if s is None:
+            return 0, 0
+        return (s.recognised if what == "named" else s.suspension_runs), s.runs
+
+    return measure
+
+
+def _load(score: MethodScore) -> tuple[int, float]:
+    return sum(v[1] for v in score.load_windows.values()), sum(v[0] for v in score.load_windows.values())
+
+
+_noisy_text = f"noisy sensor ({HISS_RMS_MPS2:g} m/s^2 RMS on {NOISY_CHANNEL})"
+TARGETS: tuple[TransferTarget, ...] = (
+    TransferTarget("healthy running: CONFIRMED (none in 100 h)", 0, True, lambda s: (s.healthy_alarms, s.healthy_hours), events=True),
+    TransferTarget("healthy runs with a SUSPECTED", 0.01, True, lambda s: (s.healthy_suspected_runs, s.healthy_runs)),
+    TransferTarget("healthy 10-min runs with a false SENSOR_FAULT", 0.005, True, lambda s: (s.healthy_sensor_fault_runs, s.healthy_runs)),
+    TransferTarget("stops and starts: runs with a suspension alarm", 0.0, True, _quiet("stops")),
+    TransferTarget("standing: runs with a suspension alarm", 0.0, True, _quiet("standing")),
+    TransferTarget(f"{_noisy_text}: runs with a suspension alarm", 0.0, True, _noisy("suspension")),
+    TransferTarget(f"{_noisy_text}: reported noisy on {NOISY_CHANNEL}", 0.90, False, _noisy("named")),
+    TransferTarget("load state right, of the judged windows", 0.99, False, _load),
+    TransferTarget("broken spring, full load: confirmed within 10 min", 0.95, False, lambda s: pooled(s, BROKEN_FULL)),
+    TransferTarget("broken outer spring, tare: confirmed within 10 min", 0.90, False, lambda s: pooled(s, BROKEN_TARE_OUTER)),
+    TransferTarget("spring at 50 %, full load: confirmed within 1 h", 0.80, False, lambda s: _sequences_within(s, SPRINGS_50)),
+    TransferTarget("spring at 200 %, full load: confirmed within 1 h", 0.80, False, lambda s: _sequences_within(s, SPRINGS_200)),
+    TransferTarget("friction at 50 %, full load: confirmed within 1 h", 0.80, False, lambda s: _sequences_within(s, FRICTION_50)),
+    TransferTarget("friction at 150 %, full load: confirmed within 1 h", 0.80, False, lambda s: _sequences_within(s, FRICTION_150)),
+    TransferTarget("confirmed broken springs: corner right", 0.90, False, lambda s: _corner(s, True)),
+    TransferTarget("confirmed broken springs: corner wrong", 0.05, True, lambda s: _corner(s, False)),
+)
+
+
+def _gap(cross: Figure, same: Figure, target: TransferTarget) -> str:
+    """Cross-model minus same-model: percentage points of a share, a difference of events."""
+    if not (math.isfinite(cross.value) and math.isfinite(same.value)):
+        return "-"
+    if target.events:
+        return f"{cross.num - same.num:+d}"
+    return f"{100 * (cross.value - same.value):+.1f} pp"
+
+
+def _verdict(met: bool | None) -> str:
+    return "n/a" if met is None else "met" if met else "**missed**"
+
+
+# --------------------------------------------------------------------------------------------
+# The report
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header), *("| " + " | ".join(r) + " |" for r in rows)]
+
+
+def _by_evaluation(judgements: Sequence[Judgement]) -> dict[str, tuple[Judgement, Judgement | None]]:
+    """Per evaluation model: (the same model's priors, the other model's)."""
+    out: dict[str, tuple[Judgement, Judgement | None]] = {}
+    for j in judgements:
+        if j.same_model:
+            cross = next((k for k in judgements if k.evaluated == j.evaluated and not k.same_model), None)
+            out[j.evaluated] = (j, cross)
+    return out
+
+
+def target_rows(judgements: Sequence[Judgement]) -> list[dict[str, Any]]:
+    rows = []
+    for t in TARGETS:
+        row: dict[str, Any] = {"target": t.name, "goal": t.goal, "goal_text": t.goal_text, "at_most": t.at_most, "events": t.events, "figures": []}
+        for evaluated, (same, cross) in _by_evaluation(judgements).items():
+            entries = [(same, t.figure(same.score))]
+            if cross is not None:
+                entries.append((cross, t.figure(cross.score)))
+                row.setdefault("gaps", {})[evaluated] = _gap(entries[1][1], entries[0][1], t)
+            for j, f in entries:
+                row["figures"].append({
+                    "priors": j.priors, "evaluated": j.evaluated, "num": f.num, "den": round(f.den, 3),
+                    "value": None if not math.isfinite(f.value) else round(f.value, 6), "text": f.text, "met": f.met,
+                })  # fmt: skip
+        rows.append(row)
+    return rows
+
+
+def _plain(value: Any) -> Any:
+    """A plan's field as JSON: tuples as lists, corners by name."""
+    if isinstance(value, Corner):
+        return value.value
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _plan_json(plan: EvaluationPlan) -> dict[str, Any]:
+    return {f.name: _plain(getattr(plan, f.name)) for f in fields(plan)}
+
+
+def write_transfer_report(
+    data: Mapping[str, EvaluationData], judgements: Sequence[Judgement], out_dir: str | Path, command: str, elapsed_s: float
+) -> dict[str, Any]:
+    """README.md and results.json into out_dir."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = target_rows(judgements)
+    doc = {
+        "format": 1,
+        "command": command,
+        "plan": next(iter(data.values())).plan.name,
+        "elapsed_s": round(elapsed_s, 1),
+        "simulation_s": {m: round(d.elapsed_s, 1) for m, d in data.items()},
+        "simulated_h": {m: round(d.simulated_s / 3600.0, 2) for m, d in data.items()},
+        "healthy_h": {m: round(healthy_hours(d.plan), 2) for m, d in data.items()},
+        "fault_horizon_s": FAULT_HORIZON_S,
+        "trend_horizon_s": TREND_HORIZON_S,
+        "plans": {m: _plan_json(d.plan) for m, d in data.items()},
+        "targets": rows,
+        "judgements": [
+            {"priors": j.priors, "evaluated": j.evaluated, "same_model": j.same_model,
+             **{k: v for k, v in score_json(j.score).items() if k != "targets"}, "extra": _extra_json(j.score)}
+            for j in judgements
+        ],  # fmt: skip
+    }
+    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    (out / "README.md").write_text("\n".join(_readme(data, judgements, rows, command, elapsed_s)) + "\n", encoding="utf-8")
+    return doc
+
+
+def _extra_json(score: MethodScore) -> dict[str, Any]:
+    """What score_json leaves out: the transfer's figures."""
+    return {
+        "detection_horizon_s": score.detection_horizon_s,
+        "healthy_suspected_runs": score.healthy_suspected_runs,
+        "healthy_sensor_fault_runs": score.healthy_sensor_fault_runs,
+        "healthy_problems": score.healthy_problems,
+        "quiet": [
+            {"role": q.role, "runs": q.runs, "hours": round(q.hours, 3), "suspension_runs": q.suspension_runs, "confirmed_runs": q.confirmed_runs,
+             "sensor_fault_runs": q.sensor_fault_runs, "problems": q.problems, "windows": q.windows, "judged_windows": q.judged_windows}
+            for q in score.quiet
+        ],  # fmt: skip
+        "load_all_windows": score.load_all_windows,
+        "sequences_within_trend_horizon": {f"{c.key}|{c.severity:g}": c.within(TREND_HORIZON_S) for c in score.sequence_cells},
+        "sensors_channels_named": {s.damage: s.channels_named for s in score.sensors},
+    }
+
+
+def _readme(
+    data: Mapping[str, EvaluationData], judgements: Sequence[Judgement], rows: Sequence[Mapping[str, Any]], command: str, elapsed_s: float
+) -> list[str]:
+    plan = next(iter(data.values())).plan
+    by_eval = _by_evaluation(judgements)
+    sim_h = sum(d.simulated_s for d in data.values()) / 3600.0
+    sim_min = sum(d.elapsed_s for d in data.values()) / 60.0
+    header = ["target", "goal"]
+    for evaluated, (same, cross) in by_eval.items():
+        header += [same.label, ""] + ([cross.label, "", f"gap on {evaluated.upper()}"] if cross is not None else [])
+    table = []
+    for row in rows:
+        cells = [row["target"], row["goal_text"]]
+        figures = {(f["priors"], f["evaluated"]): f for f in row["figures"]}
+        for evaluated, (same, cross) in by_eval.items():
+            for j in (same, cross):
+                if j is None:
+                    continue
+                f = figures[(j.priors, j.evaluated)]
+                cells += [f["text"], _verdict(f["met"])]
+            if cross is not None:
+                cells.append(row["gaps"][evaluated])
+        table.append(cells)
+    healthy = {m: healthy_hours(d.plan) for m, d in data.items()}
+    lines = [
+        "# Priors across wagon models: the transfer evaluation",
+        "",
+        f"Regenerate with `make transfer` (`{command}`). The {sim_h:.0f} h of simulated running (both models) took "
+        f"{sim_min:.0f} min to simulate and analyse on this project's 2-core machine"
+        + (f"; fitting, judging and writing brought it to {elapsed_s / 60:.0f} min." if elapsed_s >= sim_min * 60 else
+           f" (earlier, kept in a data file); this report took {elapsed_s / 60:.0f} min to fit, judge and write.")
+        + " Numbers for programs: [results.json](results.json).",
+        "",
+        "## What was judged",
+        "",
+        "- **Two wagon models.** Model A is the simulator the shipped priors are fitted on (simulator/vehicle.py, "
+        "docs/simulator.md); model B is a Y25 wagon formulated independently (simulator/model_b, docs/simulator-b.md): "
+        "its own parameters, bodies, friction, contact, track and sensor model. The same plan runs on both: wagon i "
+        "of a fleet takes the same draws on its model's own parameter set (lab/robust/wagons.py: masses and inertias "
+        "+/-10 %, coils +/-5 % per wagon and per corner, friction +/-10 % per wagon and per corner, stick and side-bearer "
+        "stiffness +/-10 % and +/-20 %, sensors' gain +/-3 %, bias +/-0.3 m/s^2, noise 0.005-0.03 m/s^2), and run k "
+        "the same track class, speeds and direction.",
+        "- **Four judgements.** The priors (load model, fused spread and levels, fault signatures) fitted by "
+        "lab/modelfit.py on the training fleet of one model (wagons disjoint from the evaluation's) into a temporary "
+        "folder, given to the daemon as `decision.models_dir`; the daemon's default method (fused, calibrated) judges "
+        "each evaluation fleet, every wagon commissioned per load on its own calibration runs (`bogiemon calibrate`'s "
+        "code). The targets are for the model the priors were **not** fitted on (the cross-model columns); the gap is "
+        "cross-model minus same-model on one evaluation fleet.",
+        f"- **Plan '{plan.name}'** (per model): {plan.n_wagons} evaluation wagons and {plan.n_training_wagons} training "
+        f"wagons; per wagon and load {plan.calibration_runs} commissioning runs of {plan.calibration_s:g} s and "
+        f"{plan.healthy_runs} healthy test runs of {plan.healthy_s:g} s ({', '.join(f'{h:.1f} h on {m.upper()}' for m, h in healthy.items())} "
+        f"across both loads; the issue's figure is 100 h, `--full`), {plan.stop_runs} run(s) of {plan.stop_s:g} s with one "
+        f"or two stops (braking to 0 km/h, 60-120 s standing, starting again) and {plan.standing_runs} standing run(s) of "
+        f"{plan.standing_s:g} s; {plan.sensor_runs} run(s) of {plan.sensor_s:g} s per load with the noisy sensor: "
+        f"{SENSOR_DAMAGE[NOISY]}.",
+        f"- **Faults**: the broken springs (full load: every coil; tare: the outer coils) on "
+        f"{', '.join(c.value for c in plan.corners)}, {plan.fault_runs} run(s) per case and corner: {plan.lead_in_s:g} s "
+        f"healthy, then {plan.fault_s:g} s with the fault; detected means CONFIRMED within {FAULT_HORIZON_S / 60:g} min of "
+        f"running with it. The 50 % and 200 % coils and the 50 % and 150 % friction at full load as trend sequences: the "
+        f"fault appears after {plan.lead_in_s:g} s and the wagon runs on with it over {plan.trend_runs} runs of "
+        f"{plan.trend_run_s:g} s on other tracks and speeds{_on(plan.trend_corners)}; detected means CONFIRMED within "
+        f"{TREND_HORIZON_S / 3600:g} h of running with it.",
+        "",
+        "## Targets",
+        "",
+        "Every figure with its count. Healthy running: the healthy test runs of both loads, each wagon's runs of a "
+        "load judged in order as one stretch of running. A suspension alarm is a SUSPECTED or CONFIRMED; a "
+        "SENSOR_FAULT in a healthy run is false. Load state: the windows of the healthy, stops and fault runs judged "
+        "in the run's own load state, over those judged (a window not judged is not wrong; the share judged is "
+        "below). Corner of the confirmed broken springs: right, wrong or unknown (the diagnosis declined).",
+        "",
+        *_table(header, table),
+        "",
+    ]
+    lines += _details(data, judgements)
+    return lines
+
+
+def _on(corners: Sequence[Corner] | None) -> str:
+    return "" if corners is None else f", on {', '.join(c.value for c in corners)}"
+
+
+def _details(data: Mapping[str, EvaluationData], judgements: Sequence[Judgement]) -> list[str]:
+    lines = ["## Healthy running, stops, standing and the noisy sensor", ""]
+    rows = []
+    for j in judgements:
+        s = j.score
+        named = ", ".join(f"{k} ({v})" for k, v in s.healthy_problems.items()) or "-"
+        rows.append([j.label, f"{s.healthy_runs} runs, {s.healthy_hours:.1f} h", f"{s.healthy_alarms} ({s.healthy_alarm_runs} runs)",
+                     f"{s.healthy_suspected} ({s.healthy_suspected_runs} runs)", f"{s.healthy_sensor_fault_runs} runs: {named}"])  # fmt: skip
+    lines += _table(["judgement", "healthy running", "CONFIRMED", "SUSPECTED", "false SENSOR_FAULT (problems named)"], rows)
+    lines.append("")
+    rows = []
+    for j in judgements:
+        for q in j.score.quiet:
+            named = ", ".join(f"{k} ({v})" for k, v in q.problems.items()) or "-"
+            rows.append([j.label, q.role, f"{q.runs} runs, {q.hours:.1f} h", str(q.suspension_runs), str(q.confirmed_runs),
+                         f"{q.sensor_fault_runs}: {named}", f"{q.judged_windows} of {q.windows}"])  # fmt: skip
+        noisy = j.score.sensor(NOISY)
+        if noisy is not None:
+            named = ", ".join(f"{k} ({v})" for k, v in noisy.problems.items()) or "-"
+            rows.append([j.label, f"noisy {NOISY_CHANNEL}", f"{noisy.runs} runs", str(noisy.suspension_runs), "-",
+                         f"{noisy.flagged}: {named}", "-"])  # fmt: skip
+    lines += _table(["judgement", "runs", "count", "suspension alarm (runs)", "CONFIRMED (runs)", "SENSOR_FAULT runs: problems named (runs)", "windows judged"], rows)
+    lines += ["", "## Faults", "", f"Single runs: confirmed within {FAULT_HORIZON_S:g} s of running with the fault; the corner of those confirmed.", ""]
+    rows = []
+    for j in judgements:
+        for c in j.score.cells:
+            wrong = c.detected - c.corner_right - c.unknown_corner
+            rows.append([j.label, case_label(c.key, c.severity), f"{c.detected} of {c.runs}", "-" if not c.times_s else f"{c.median_time_s:.0f} s",
+                         f"{c.corner_right} / {wrong} / {c.unknown_corner}"])  # fmt: skip
+    lines += _table(["judgement", "case", "confirmed", "median time", "corner right / wrong / unknown"], rows)
+    lines += ["", f"Trend sequences: confirmed within {TREND_HORIZON_S:g} s of running with the fault (and before the sequence ended).", ""]
+    rows = []
+    for j in judgements:
+        for c in j.score.sequence_cells:
+            rows.append([j.label, case_label(c.key, c.severity), f"{c.within(TREND_HORIZON_S)} of {c.sequences}", f"{c.detected} of {c.sequences}",
+                         "-" if not c.times_s else f"{c.median_time_s:.0f} s", f"{c.by_trend}", f"{c.corner_right}"])  # fmt: skip
+    lines += _table(["judgement", "case", "within 1 h", "before the end", "median time", "by the trend", "corner right"], rows)
+    lines += ["", "## Load state", ""]
+    rows = []
+    for j in judgements:
+        for load, (judged, right) in j.score.load_windows.items():
+            every = j.score.load_all_windows.get(load, 0)
+            rows.append([j.label, load, f"{_pct(judged / every) if every else '-'} ({judged} of {every})", f"{_pct(right / judged) if judged else '-'} ({right} of {judged})"])
+    lines += _table(["judgement", "load", "windows judged", "right, of the judged"], rows)
+    lines += [
+        "",
+        "## How it was run",
+        "",
+        *(f"- Model {m.upper()}: {d.simulated_s / 3600:.1f} h of running in {len(d.runs)} runs"
+          + (f" ({d.reused_runs} of them from an earlier simulation)" if d.reused_runs else "")
+          + f", simulated and analysed in {d.elapsed_s / 60:.1f} min." for m, d in data.items()),
+        "- Priors: lab/modelfit.py's fit_models on each model's training fleet (the rule of `make evaluate --fit-models`); "
+        "bogiemon's config folder is not touched.",
+        "- Code: lab/robust/transfer.py (plans, judgements, targets), lab/robust/wagons.py (the fleet on either model), "
+        "lab/robust/fleet.py (the runs: stops, standing, the noisy sensor), lab/robust/score.py (the counts).",
+    ]  # fmt: skip
+    return lines
+
+
+# --------------------------------------------------------------------------------------------
+# The command
+
+
+def run_transfer(
+    config: BogiemonConfig,
+    out_dir: str | Path,
+    command: str,
+    size: str = "default",
+    data_file: str | Path | None = None,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Simulate (or load) the plan on both models, fit each model's priors into a temporary
+    folder, judge the four combinations and write README.md and results.json into out_dir."""
+    started = time.perf_counter()
+    plans = transfer_plans(size)
+
+    def part(base: float, share: float) -> Progress | None:
+        return None if progress is None else (lambda f: progress(base + share * f))
+
+    data = load_or_simulate_models(plans, config, data_file, part(0.0, 0.85))
+    with tempfile.TemporaryDirectory(prefix="bogiemon-priors-") as folder:
+        dirs = {}
+        for model, fleet in data.items():
+            dirs[model] = Path(folder) / model
+            dirs[model].mkdir()
+            fit_and_write_models(fleet, config, dirs[model])
+        judgements = judge_transfer(data, config, dirs, part(0.85, 0.15))
+    try:
+        return write_transfer_report(data, judgements, out_dir, command, time.perf_counter() - started)
+    except OSError as exc:
+        raise EvaluateError(f"{out_dir}: cannot write the report: {exc.strerror or exc}") from None

@@ -1,0 +1,256 @@
+"""The diagnosis from the geometry: the corner from the signs of the coupling shift, or "unknown"."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bogiemon.daemon.decision import Decider, DecisionSettings, FusedSettings
+from bogiemon.daemon.diagnosis import MIN_SCORE, NO_EVIDENCE, SIGN_BANDS, diagnose, healthy_covariance, raw_shift, sign_evidence
+from bogiemon.daemon.events import EventKind
+from bogiemon.daemon.models import UNKNOWN, Baseline, Levels, whitening_of
+from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
+from bogiemon.detection.channel_stats import ChannelStats
+from bogiemon.detection.features import BOUNCE, COUPLING_FEATURES, PITCH, ROLL
+from bogiemon.detection.spectra import BANDS_HZ, WindowSpectra
+
+N = len(COUPLING_FEATURES)
+SD = 0.05  # the healthy spread of every coupling in these tests
+LEVELS = Levels(warning=20.0, alarm=40.0, trend_warning=2.0, trend_alarm=4.0)  # the trend's spread: 1/10 of a window's variance
+
+
+def covariance(rho: float = 0.3) -> np.ndarray:
+    """SD in every coupling, bands of one coupling correlated by rho, the two couplings not."""
+    c = np.zeros((N, N))
+    for a, (_, ia, _, _) in enumerate(COUPLING_FEATURES):
+        for b, (_, ib, _, _) in enumerate(COUPLING_FEATURES):
+            c[a, b] = SD**2 * (1.0 if a == b else rho if ia == ib else 0.0)
+    return c
+
+
+def baseline(cov: np.ndarray | None = None, center: np.ndarray | None = None) -> Baseline:
+    cov = covariance() if cov is None else cov
+    center = np.linspace(-0.1, 0.1, N) if center is None else center
+    return Baseline("calibrated", center, whitening_of(cov), LEVELS, trend_tau_s=1800.0)
+
+
+def shift_of(corner: Corner, load: str, amplitude_sd: float, softer: bool = True) -> np.ndarray:
+    """A raw coupling shift of amplitude_sd healthy spreads in the load's sign bands, with the signs
+    a softer (or stiffer) corner gives: x y for pitch-roll, y for bounce-roll."""
+    sign = 1.0 if softer else -1.0
+    out = np.zeros(N)
+    for k, (_, mode, _, band) in enumerate(COUPLING_FEATURES):
+        if band in SIGN_BANDS[load]:
+            out[k] = sign * amplitude_sd * SD * (corner.x_sign * corner.y_sign if mode == PITCH else corner.y_sign)
+    return out
+
+
+def windows_of(shift: np.ndarray, b: Baseline, n: int = 3) -> list[list[float]]:
+    """n confirming windows' whitened shifts, all of this raw shift."""
+    return [list(b.whitening @ shift)] * n
+
+
+def across_the_track(corner: Corner) -> Corner:
+    return next(c for c in Corner if c.x_sign == corner.x_sign and c.y_sign != corner.y_sign)
+
+
+@pytest.mark.parametrize("load", ["full", "tare"])
+@pytest.mark.parametrize("corner", list(Corner))
+def test_a_softer_corner_is_named_from_the_signs_of_its_shift(corner: Corner, load: str) -> None:
+    b = baseline()
+    d = diagnose(windows_of(shift_of(corner, load, 6.0), b), b, load)
+    assert (d.corner, d.kind, d.windows) == (corner.value, UNKNOWN, 3)
+    assert d.corner_confidence > 0.999 and d.cosine == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("load", ["full", "tare"])
+@pytest.mark.parametrize("corner", list(Corner))
+def test_a_stiffer_corner_reads_as_its_neighbour_across_the_track_softening(corner: Corner, load: str) -> None:
+    # The mirror y -> -y flips both couplings: the first-order ambiguity the docstring states.
+    b = baseline()
+    d = diagnose(windows_of(shift_of(corner, load, 6.0, softer=False), b), b, load)
+    assert d.corner == across_the_track(corner).value
+    assert d.kind == UNKNOWN
+
+
+def test_bands_that_disagree_in_sign_give_unknown() -> None:
+    b = baseline()
+    shift = shift_of(Corner.LEADING_LEFT, "full", 6.0)
+    low, high = SIGN_BANDS["full"]
+    k = next(k for k, (_, mode, _, band) in enumerate(COUPLING_FEATURES) if mode == PITCH and band == high)
+    shift[k] = -2.0 * SD  # pitch-roll: +6 sd at 4-8 Hz, -2 sd at 16-32 Hz
+    d = diagnose(windows_of(shift, b), b, "full")
+    assert d.corner == UNKNOWN
+    assert d.best_match.endswith("leading-left if softer") and d.cosine < 1.0
+
+
+def test_a_shift_within_its_noise_gives_unknown() -> None:
+    b = baseline()
+    d = diagnose(windows_of(shift_of(Corner.TRAILING_RIGHT, "full", 1.5), b), b, "full")
+    assert d.corner == UNKNOWN
+    assert d.best_match.endswith("trailing-right if softer")
+
+
+def test_one_clear_sign_alone_gives_unknown() -> None:
+    b = baseline()
+    shift = shift_of(Corner.LEADING_RIGHT, "tare", 8.0)
+    shift[[k for k, (_, mode, _, _) in enumerate(COUPLING_FEATURES) if mode == BOUNCE]] *= 0.1  # bounce-roll 0.8 sd
+    assert diagnose(windows_of(shift, b), b, "tare").corner == UNKNOWN
+
+
+def test_windows_that_scatter_widely_about_a_clear_mean_give_unknown() -> None:
+    b = baseline()
+    mean = shift_of(Corner.TRAILING_LEFT, "full", 4.0)
+    assert diagnose(windows_of(mean, b, 4), b, "full").corner == "trailing-left"
+    spread = np.zeros(N)
+    spread[:] = 12.0 * SD
+    scattered = [list(b.whitening @ (mean + s * spread)) for s in (1.0, -1.0, 1.0, -1.0)]
+    assert diagnose(scattered, b, "full").corner == UNKNOWN
+
+
+def test_the_trend_is_read_against_its_smaller_spread() -> None:
+    b = baseline()
+    mean = windows_of(shift_of(Corner.LEADING_LEFT, "full", 2.0), b, 1)
+    assert diagnose(mean, b, "full").corner == UNKNOWN  # 2 sd of a window's spread: within the noise
+    # The trend's spread is sqrt(4 / 40) of a window's: the same mean is 6.3 of its sd.
+    assert diagnose(mean, b, "full", trend=True).corner == "leading-left"
+
+
+def test_uncorrelated_bands_score_the_sum_of_their_standard_scores_over_root_n() -> None:
+    b = baseline(covariance(rho=0.0))
+    rng = np.random.default_rng(3)
+    shift = rng.normal(0.0, SD, N)
+    e = sign_evidence(shift, healthy_covariance(b), healthy_covariance(b), (2, 4, 6))
+    pr = [shift[k] / SD for k, (_, mode, _, band) in enumerate(COUPLING_FEATURES) if mode == PITCH and band in (2, 4, 6)]
+    br = [shift[k] / SD for k, (_, mode, _, band) in enumerate(COUPLING_FEATURES) if mode == BOUNCE and band in (2, 4, 6)]
+    assert e.score_pr == pytest.approx(sum(pr) / np.sqrt(3)) and e.score_br == pytest.approx(sum(br) / np.sqrt(3))
+    np.testing.assert_allclose(e.band_scores_pr, pr)
+
+
+def test_the_raw_shift_is_recovered_from_the_whitened_one() -> None:
+    b = baseline()
+    x = np.linspace(0.3, -0.2, N)
+    np.testing.assert_allclose(raw_shift(b, b.whiten(x)), x - b.center, atol=1e-12)
+    np.testing.assert_allclose(healthy_covariance(b), covariance(), atol=1e-15)
+
+
+def test_no_shifts_or_a_load_state_without_sign_bands_give_no_evidence() -> None:
+    b = baseline()
+    assert diagnose([], b, "full") == NO_EVIDENCE
+    assert diagnose(windows_of(shift_of(Corner.LEADING_LEFT, "full", 6.0), b), b, "half") == NO_EVIDENCE
+    assert set(NO_EVIDENCE.as_dict()) == {"corner", "kind", "corner_confidence", "kind_confidence", "best_match", "cosine", "windows"}
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    corner=st.sampled_from(list(Corner)),
+    load=st.sampled_from(["full", "tare"]),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_the_corner_follows_the_signs_whatever_the_healthy_spread_and_center(corner: Corner, load: str, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 1.0, (N, N))
+    cov = SD**2 * (a @ a.T / N + 0.2 * np.eye(N))
+    b = baseline(cov, rng.normal(0.0, 0.1, N))
+    sd = np.sqrt(np.diag(cov))
+    shift = np.sign(shift_of(corner, load, 1.0)) * 1.2 * MIN_SCORE * sd  # every read band beyond MIN_SCORE: the sum is too
+    assert diagnose(windows_of(shift, b), b, load).corner == corner.value
+
+
+# --------------------------------------------------------------------------------------------
+# The geometry: the configured corners change the modal matrix, not the physical answer
+
+QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
+LAYOUTS = [
+    (Corner.LEADING_LEFT, Corner.LEADING_RIGHT, Corner.TRAILING_LEFT),
+    (Corner.TRAILING_RIGHT, Corner.TRAILING_LEFT, Corner.LEADING_RIGHT),
+    (Corner.LEADING_RIGHT, Corner.TRAILING_RIGHT, Corner.LEADING_LEFT),
+    (Corner.TRAILING_LEFT, Corner.LEADING_LEFT, Corner.TRAILING_RIGHT),
+]
+
+
+def sensor_spectra(modal_coupling: np.ndarray, geometry: BogieGeometry) -> WindowSpectra:
+    """The channels' band spectra of a frame whose modal accelerations have unit power and these
+    couplings (COUPLING_FEATURES order), seen by sensors at the geometry's corners."""
+    modal = np.tile(np.eye(3, dtype=np.complex128), (len(BANDS_HZ) - 1, 1, 1))
+    for value, (_, i, j, band) in zip(modal_coupling, COUPLING_FEATURES, strict=True):
+        modal[band, i, j] = modal[band, j, i] = value
+    s = geometry.sensor_matrix()
+    return WindowSpectra.from_matrix(np.einsum("ai,bij,cj->bac", s, modal, s))
+
+
+def window(spectra: WindowSpectra, t_s: float) -> WindowIndicators:
+    return WindowIndicators(
+        start_s=t_s, end_s=t_s + 120.0, i1=0, i2=0, i3=0, i4=0, i1_norm=0, i2_norm=0, i3_norm=0, i4_norm=0,
+        rms_mps2=(1.0, 1.0, 1.0), rms_bounce_mps2=1, rms_pitch_radps2=1, rms_roll_radps2=1, channels=QUIET, spectra=spectra,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("layout", LAYOUTS, ids=lambda c: "+".join(x.value for x in c))
+def test_the_decider_names_the_physical_corner_whatever_corners_the_sensors_are_on(layout: tuple[Corner, Corner, Corner]) -> None:
+    geometry = BogieGeometry(corners=layout)
+    b = Baseline("calibrated", np.zeros(N), whitening_of(covariance()), LEVELS, trend_tau_s=1800.0)
+    fused = FusedSettings({"full": b}, {}, geometry, hop_s=10.0)
+    decider = Decider(DecisionSettings({}, confirm_k=3, confirm_n=5, method="fused", fused=fused), "cfg")
+    physical = shift_of(Corner.TRAILING_RIGHT, "full", 8.0)  # a softer trailing-right corner, in every band read
+    spectra = sensor_spectra(physical, geometry)
+    events = [e for i in range(3) for e in decider.update(window(spectra, 10.0 * i), "full")[1]]
+    (confirmed,) = [e for e in events if e.kind is EventKind.CONFIRMED]
+    assert confirmed.details["diagnosis"]["corner"] == "trailing-right"
+    # The channels themselves differ from the paper's layout's: only the modal map undoes them.
+    paper = sensor_spectra(physical, BogieGeometry())
+    assert layout == LAYOUTS[0] or not np.allclose(spectra.matrix(), paper.matrix())
+
+
+def test_roll_is_read_with_the_sign_of_the_left_rail_whatever_the_layout() -> None:
+    # The frame rolling left up: the left sensors read more, whichever two of them there are.
+    for layout in LAYOUTS:
+        rows = BogieGeometry(corners=layout).sensor_matrix()
+        left = [i for i, c in enumerate(layout) if c.y_sign > 0]
+        right = [i for i, c in enumerate(layout) if c.y_sign < 0]
+        assert all(rows[i, ROLL] > 0 for i in left) and all(rows[i, ROLL] < 0 for i in right)
+
+
+# --------------------------------------------------------------------------------------------
+# A simulated broken spring on model A
+
+
+@pytest.fixture(scope="module")
+def commissioned():  # type: ignore[no-untyped-def]
+    """The default config commissioned at full load on two healthy 450 s runs of the nominal wagon."""
+    from bogiemon.daemon.calibrate import calibrate_windows, fragment
+    from bogiemon.daemon.config import BogiemonConfig
+    from bogiemon.detection import IndicatorStream
+    from bogiemon.lab.robust.judge import with_fragment
+    from bogiemon.simulator import Scenario, SpeedProfile, simulate_batch
+
+    config = BogiemonConfig()
+    runs = simulate_batch([Scenario(load="full", track=t, speed=SpeedProfile.constant(v), duration_s=450.0, seed=s)
+                           for s, (t, v) in enumerate([("erri-low", 70.0), ("fra-5", 90.0)])])  # fmt: skip
+    windows = [w for r in runs for w in IndicatorStream(config.processing_settings(), config.bogie_geometry()).process(r.accel_mps2)]
+    return with_fragment(config, fragment(calibrate_windows(windows, config, "full")))
+
+
+@pytest.mark.slow
+def test_a_simulated_broken_rear_coil_is_named_at_each_corner(commissioned) -> None:  # type: ignore[no-untyped-def]
+    from bogiemon.daemon.monitor import WindowJudge
+    from bogiemon.detection import IndicatorStream
+    from bogiemon.simulator import Fault, Scenario, SpeedProfile, simulate_batch
+
+    corners = list(Corner)
+    # A broken rear outer coil at full load: Kz and the Lenoir damper's grip both fall, softer in every sense.
+    faults = [Fault(kind="type_a", corner=c, position="rear_outer", severity=0.0) for c in corners]
+    runs = simulate_batch(
+        [Scenario(load="full", track="erri-high", speed=SpeedProfile.constant(80.0), duration_s=330.0, seed=40 + k, faults=(f,), fault_onset_s=90.0)
+         for k, f in enumerate(faults)]
+    )  # fmt: skip
+    settings = commissioned.monitor_settings()
+    for corner, run in zip(corners, runs, strict=True):
+        judge = WindowJudge(settings)
+        events = [e for w in IndicatorStream(settings.processing, settings.geometry).process(run.accel_mps2) for e in judge.judge(w).events]
+        confirmed = [e for e in events if e.kind is EventKind.CONFIRMED]
+        assert confirmed, (corner, [e.kind for e in events])
+        assert confirmed[0].time_s > 90.0
+        assert confirmed[0].details["diagnosis"]["corner"] == corner.value, confirmed[0].details["diagnosis"]
