@@ -33,6 +33,7 @@ All of it goes into one config fragment for the daemon's `include` list.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -46,7 +47,7 @@ from bogiemon.daemon import tomlout
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.decision import INDICATOR_FIELDS
-from bogiemon.daemon.health import StructureFit, assess_window, learn_structure, merge_structures
+from bogiemon.daemon.health import NoiseFloorFit, StructureFit, assess_window, learn_noise_floor, learn_structure, merge_noise_floors, merge_structures
 from bogiemon.daemon.commissioning import fit_discriminant, fit_spread, load_signature, runs_of, split_loads
 from bogiemon.daemon.models import Levels, LoadDiscriminant, LoadSignature, coupling_features, load_features, shipped_models
 from bogiemon.daemon.rules import Threshold, fit_threshold
@@ -111,6 +112,9 @@ class CalibrationResult:
     structure: StructureFit | None = None
     # With both load states: the wagon's own line between them (daemon/commissioning.py).
     discriminant: LoadDiscriminant | None = None
+    # Its sensors' noise floors (daemon/health.py): in force after commissioning, so a sensor whose
+    # floor rises far above what the healthy wagon showed is noisy.
+    noise_floor: NoiseFloorFit | None = None
 
     @property
     def n_judged(self) -> int:
@@ -170,6 +174,7 @@ def combine_loads(parts: Sequence[CalibrationResult], config: BogiemonConfig) ->
         tuple(c for r in parts for c in r.loads), {}, "each load state from its own recordings",
         structure=merge_structures([r.structure for r in parts if r.structure is not None]),
         discriminant=_discriminant([c for r in parts for c in r.loads], config),
+        noise_floor=merge_noise_floors([r.noise_floor for r in parts]),
     )  # fmt: skip
 
 
@@ -239,7 +244,7 @@ def calibrate_windows(
     return CalibrationResult(
         load, files, n_windows, warning_rate, alarm_rate, tuple(results), skipped,
         split.note if split is not None else "", split.by_prior if split is not None else False,
-        learn_structure(judgeable, geometry), _discriminant(results, config),
+        learn_structure(judgeable, geometry), _discriminant(results, config), learn_noise_floor(judgeable),
     )  # fmt: skip
 
 
@@ -271,7 +276,7 @@ def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: st
         runs = [groups[r] for r in sorted(groups)]
     else:
         runs = runs_of([w for w, _ in kept], config.processing.hop_s)
-    fit = fit_spread(rows, runs, model, config.processing.hop_s)
+    fit = fit_spread(rows, runs, model, config.processing.hop_s, config.decision.confirm_k, config.decision.confirm_n)
     return FusedCalibration(
         tuple(float(v) for v in fit.center), fit.levels, fit.median_score, fit.level_factor,
         tuple(tuple(float(v) for v in row) for row in fit.covariance), fit.shrinkage, fit.runs, fit.out_of_sample_median,
@@ -293,7 +298,8 @@ def fragment(result: CalibrationResult) -> str:
         "# decision.load_states.<load>: the load states it was commissioned in, for decision.load = \"auto\";",
         "# decision.load_discriminant: with both, this wagon's own line between them (near it: not judged).",
         "# health.layout_checks: the checks of the sensors' places and signs that held on every healthy window",
-        "# (none held: none in force, so no SWAPPED or INVERTED is ever reported for this wagon).",
+        "# (none held: none in force, so no SWAPPED or INVERTED is ever reported for this wagon);",
+        "# health.noise_floor_*: each sensor's smallest noise floor and largest ratio to the others' on the healthy windows.",
         *([f"# Load states: {result.load_note}."] if result.load_note else []),
         "# Include it from the daemon's config: include = [\"<this file>\"]",
     ]
@@ -312,7 +318,8 @@ def fragment(result: CalibrationResult) -> str:
     }
     load_states = {
         c.load: {"center": [float(v) for v in c.signature.center], "scale": [float(v) for v in c.signature.scale],
-                 "limit": c.signature.limit, "windows": c.n_judged}  # fmt: skip
+                 "limit": c.signature.limit, "windows": c.n_judged,
+                 "lowest_excitation_mps2": math.floor(c.signature.lowest_excitation_mps2 * 1e4) / 1e4}  # fmt: skip
         for c in result.loads
         if c.signature is not None
     }
@@ -324,4 +331,6 @@ def fragment(result: CalibrationResult) -> str:
         }  # fmt: skip
     if result.structure is not None:
         body["health"] = result.structure.health_fields()
+    if result.noise_floor is not None:
+        body.setdefault("health", {}).update(result.noise_floor.health_fields())
     return "\n".join(header) + "\n\n" + tomlout.dumps(body)

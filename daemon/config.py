@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import math
 import os
 import stat
 import tomllib
@@ -164,7 +165,9 @@ class BogiemonConfig(Section):
     def health_settings(self) -> HealthSettings:
         h = self.health
         fields = h.model_dump(exclude={"clear_after_windows"})
-        return HealthSettings(**{**fields, "layout_checks": tuple(h.layout_checks)})
+        return HealthSettings(
+            **{**fields, "layout_checks": tuple(h.layout_checks), "noise_floor_psd": tuple(h.noise_floor_psd), "noise_floor_ratio": tuple(h.noise_floor_ratio)}
+        )
 
     def decision_settings(self) -> DecisionSettings:
         d = self.decision
@@ -205,7 +208,9 @@ class BogiemonConfig(Section):
     def load_signatures(self) -> tuple[LoadSignature, ...]:
         """The load states this wagon was commissioned in (empty: the shipped load model decides)."""
         return tuple(
-            LoadSignature(load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit)
+            LoadSignature(
+                load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit, st.lowest_excitation_mps2
+            )
             for load, st in sorted(self.decision.load_states.items())
         )
 
@@ -252,7 +257,7 @@ class BogiemonConfig(Section):
             config_hash=self.digest(),
             sensor_clear_after_windows=self.health.clear_after_windows,
             load_model=self.load_model() if load == "auto" else None,
-            load_states=self.load_signatures() if load == "auto" else (),
+            load_states=self.load_signatures(),
             load_discriminant=self.load_discriminant() if load == "auto" else None,
         )
 

@@ -154,6 +154,9 @@ class LoadStateConfig(Section):
     scale: list[float]
     limit: float = Field(gt=0)
     windows: int = Field(0, ge=0, le=2**31)
+    # The gentlest excitation (the median channel's RMS, m/s^2) of its commissioning windows: a
+    # window excited more gently is not judged. 0 (calibrations before it): no limit.
+    lowest_excitation_mps2: float = Field(0.0, ge=0, le=1e6)
 
     @model_validator(mode="after")
     def _consistent(self) -> LoadStateConfig:
@@ -249,6 +252,10 @@ class HealthConfig(Section):
     layout_diagonal_coherence: float = Field(-0.3, ge=-1, le=1)
     layout_other_margin: float = Field(0.0, ge=-2, le=2)
     layout_quadrature_margin: float = Field(0.0, ge=-1, le=1)
+    # Written by commissioning too (daemon/health.py: learn_noise_floor); none: the check is not in force.
+    noise_floor_psd: list[Annotated[float, Field(gt=0, le=1e6)]] = Field(default_factory=list)
+    noise_floor_ratio: list[Annotated[float, Field(gt=0, le=1e12)]] = Field(default_factory=list)
+    noise_floor_margin: float = Field(4.0, gt=1, le=1e6)
     clear_after_windows: int = Field(3, ge=1, le=100_000)
 
     @field_validator("layout_checks")
@@ -257,6 +264,15 @@ class HealthConfig(Section):
         if len(set(checks)) != len(checks):
             raise ValueError(f"each layout check at most once, got {checks}")
         return checks
+
+    @model_validator(mode="after")
+    def _floors_per_channel(self) -> HealthConfig:
+        if len(self.noise_floor_psd) != len(self.noise_floor_ratio) or len(self.noise_floor_psd) not in (0, 3):
+            raise ValueError(
+                "noise_floor_psd and noise_floor_ratio need one value per channel (a1, a2, a3) each, or none: "
+                f"got {len(self.noise_floor_psd)} and {len(self.noise_floor_ratio)}"
+            )
+        return self
 
 
 class StateConfig(Section):

@@ -25,9 +25,17 @@ confirmed it (the alarm windows', or the trend's mean), or "unknown".
 State machine, advanced once per judged window (gated windows and windows with a sensor
 problem are not judged and change nothing):
 
-    NORMAL    --a window (or the trend) at or above a warning level-->    SUSPECTED  (event SUSPECTED)
+    NORMAL    --k - 1 of the last n judged windows at or above a warning
+                level, or the trend at its warning level-->                SUSPECTED  (event SUSPECTED)
     NORMAL or SUSPECTED --k of the last n judged windows at or above an
                           alarm level, or the trend at its alarm level-->  CONFIRMED  (event CONFIRMED)
+
+SUSPECTED asks for persistence too, one window fewer than CONFIRMED (daemon/rules.py suspicion_k;
+at least one), at the lower level: one window at a warning level is the healthy wagon's scatter
+(about one window in a hundred on a stretch of track unlike its commissioning's) and, taken alone,
+raised SUSPECTED in 13 to 19 % of healthy 10-minute runs (docs/robust/transfer); a suspicion sends
+nobody to a siding, but one raised every few runs teaches a keeper to ignore it. A fault that
+builds up is suspected a window before it is confirmed.
     SUSPECTED or CONFIRMED --clear_after consecutive judged windows below
                           every warning level, the trend below its own-->  NORMAL     (event CLEARED)
 
@@ -51,7 +59,7 @@ import numpy as np
 from bogiemon.daemon.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.daemon.models import Baseline, SignatureSet, coupling_features
-from bogiemon.daemon.rules import Level, Threshold, confirms, trend_weight
+from bogiemon.daemon.rules import Level, Threshold, confirms, suspicion_k, trend_weight
 from bogiemon.detection import BogieGeometry, WindowIndicators
 
 INDICATOR_FIELDS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
@@ -140,6 +148,8 @@ class DecisionState:
     # accumulated against (a new calibration restarts it from healthy, zero).
     trend_mean: dict[str, list[float]] = field(default_factory=dict)
     trend_baseline: dict[str, str] = field(default_factory=dict)
+    # The last confirm_n judged windows at or above a warning level (SUSPECTED's k - 1 of n).
+    recent_warnings: deque[bool] = field(default_factory=deque)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -149,6 +159,7 @@ class DecisionState:
             "recent_shifts": [None if v is None else list(v) for v in self.recent_shifts],
             "trend_mean": {k: list(v) for k, v in self.trend_mean.items()},
             "trend_baseline": dict(self.trend_baseline),
+            "recent_warnings": list(self.recent_warnings),
         }
 
     @classmethod
@@ -164,6 +175,7 @@ class DecisionState:
             shifts,
             {str(k): [float(x) for x in v] for k, v in data.get("trend_mean", {}).items()},
             {str(k): str(v) for k, v in data.get("trend_baseline", {}).items()},
+            deque(bool(v) for v in data.get("recent_warnings", [])),  # older states: none yet
         )
 
 
@@ -177,6 +189,7 @@ class Decider:
         # A reload may shrink n: keep only what still fits.
         self.state.recent_alarms = deque(self.state.recent_alarms, maxlen=settings.confirm_n)
         self.state.recent_shifts = deque(self.state.recent_shifts, maxlen=settings.confirm_n)
+        self.state.recent_warnings = deque(self.state.recent_warnings, maxlen=settings.confirm_n)
 
     def judge(self, window: WindowIndicators, load: str) -> Judgement:
         fused = self.settings.fused
@@ -210,7 +223,9 @@ class Decider:
         alarm = judgement.worst >= Level.ALARM
         s.recent_alarms.append(alarm)
         s.recent_shifts.append(list(judgement.shift) if alarm and judgement.shift is not None else None)
+        s.recent_warnings.append(judgement.worst >= Level.WARNING)
         warned = judgement.worst >= Level.WARNING or judgement.trend_level >= Level.WARNING
+        suspected = confirms(s.recent_warnings, suspicion_k(cfg.confirm_k)) or judgement.trend_level >= Level.WARNING
         s.clean_streak = 0 if warned else s.clean_streak + 1
         events: list[Event] = []
         details = {
@@ -239,15 +254,17 @@ class Decider:
                      "alarm_windows": f"{sum(s.recent_alarms)} of {len(s.recent_alarms)}", "diagnosis": diagnosis.as_dict()},
                 )  # fmt: skip
             )
-        elif s.mode is Mode.NORMAL and warned:
+        elif s.mode is Mode.NORMAL and suspected:
             s.mode = Mode.SUSPECTED
             fired = judgement.at_or_above(Level.WARNING) or {FUSED_TREND: judgement.trend}
+            details = {**details, "warning_windows": f"{sum(s.recent_warnings)} of {len(s.recent_warnings)}"}
             events.append(self._event(window, EventKind.SUSPECTED, fired, details))
         elif s.mode is not Mode.NORMAL and s.clean_streak >= cfg.clear_after_windows:
             previous = s.mode
             s.mode = Mode.NORMAL
             s.recent_alarms.clear()
             s.recent_shifts.clear()
+            s.recent_warnings.clear()
             events.append(self._event(window, EventKind.CLEARED, judgement.values, {**details, "cleared": previous.value}))
         return judgement, events
 

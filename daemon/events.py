@@ -10,7 +10,7 @@ from typing import Any
 
 
 class EventKind(enum.Enum):
-    SUSPECTED = "SUSPECTED"  # an indicator crossed its warning level
+    SUSPECTED = "SUSPECTED"  # k - 1 of the last n judged windows (or the trend) at a warning level
     CONFIRMED = "CONFIRMED"  # k of the last n judged windows crossed an alarm level: the alarm
     CLEARED = "CLEARED"  # a suspicion or an alarm ended after enough clean windows
     SENSOR_FAULT = "SENSOR_FAULT"  # a sensor is dead, stuck, clipping, noisy or dropping out

@@ -45,7 +45,26 @@ about -9.81 while another reads +9.81 is upside down), and white noise seen in t
   witness, so white noise on it cannot be told from the track in the coherence. Beside the RMS
   ratio it keeps the low-band power check: its power at 0.5-1 Hz over the median of the three
   (noise_low_band_ratio: a prior from the simulated fleet, at most 2.7 there, see [health]).
-  Its noise enters bounce and roll alike, a coupling of its own: a known gap (issue 16).
+  Its noise enters bounce and roll alike, a coupling of its own: the noise floor below closes it.
+
+THE NOISE FLOOR, learned from the wagon. A sensor's own white noise (a failing element, a poor cable
+screen, a loose mounting) of density n adds exactly n x the band's width, in every band, to the part
+of its channel the other two channels cannot explain (1 / (S^-1)_cc of the band's cross-spectral
+matrix: the cross-spectra do not change). A channel's noise floor is the smallest density of that
+part over the bands from 0.5 Hz to Nyquist (noise_floors): where the frame gives least, above
+64 Hz past its motion and into the anti-alias filters' roll-off, or where the other two sensors
+explain it best. White noise lifts the floor in every band, so to at least n, long before it shows
+in the couplings of 2-64 Hz (0.4 m/s^2 RMS at 500 Hz puts three quarters of its power above 64 Hz).
+Commissioning learns, per channel, the largest ratio of its floor to the other two channels' (their
+geometric mean) and the smallest floor its healthy windows showed (learn_noise_floor); a channel
+later noise_floor_margin times above both is noisy: alone (a rough track or a high speed lifts every
+channel's floor, leaving the ratios) and well above the quietest it ever is (at walking pace every
+floor sinks to its sensor's own, whose ratios need not be the running frame's). On the simulated
+fleets of both wagon models the floor sits in the top half octave below Nyquist (181-250 Hz at
+500 Hz), in the anti-alias roll-off, where 0.4 m/s^2 of white noise lifts it 20 to 1000 times and
+healthy running on other tracks and speeds stays within the commissioning's ratios. Uncommissioned,
+it is not in force. A frame whose own vibration fills every band up to Nyquist hides the noise: the
+check then says nothing (never a false fault), and the coherence checks above remain.
 
 THE STRUCTURE, learned from the wagon. A sensor mounted upside down or two cables swapped give
 healthy-looking channels whose bounce, pitch and roll are wrong, and strong couplings: fault-like.
@@ -139,11 +158,19 @@ class HealthSettings:
     layout_diagonal_coherence: float = -0.3  # "diagonal": the diagonal pair's 16-64 Hz coherency below this
     layout_other_margin: float = 0.0  # "other": the other pairs' 16-64 Hz coherency above the diagonal's by this
     layout_quadrature_margin: float = 0.0  # "quadrature": bounce-pitch above bounce-roll quadrature by this
+    # The noise floor, learned at commissioning (learn_noise_floor): per channel the smallest floor
+    # its healthy windows showed, (m/s^2)^2/Hz, and the largest ratio of it to the other two
+    # channels' (their geometric mean); empty on a wagon not commissioned: not in force.
+    noise_floor_psd: tuple[float, ...] = ()
+    noise_floor_ratio: tuple[float, ...] = ()
+    noise_floor_margin: float = 4.0  # a floor this many times both of those is a noisy sensor
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.layout_checks) - set(LAYOUT_CHECKS))
         if unknown:
             raise ValueError(f"unknown layout checks {unknown}: use some of {list(LAYOUT_CHECKS)}")
+        if len(self.noise_floor_psd) != len(self.noise_floor_ratio) or len(self.noise_floor_psd) not in (0, 3):
+            raise ValueError("noise_floor_psd and noise_floor_ratio need one value per channel (three each), or none")
 
 
 @dataclass(frozen=True)
@@ -382,6 +409,102 @@ def coherence_noisy_channel(matrix: NDArray[np.complex128], geometry: BogieGeome
 
 
 # --------------------------------------------------------------------------------------------
+# The noise floor, learned from the wagon
+
+
+def noise_floors(matrix: NDArray[np.complex128], bands_hz: Sequence[float]) -> NDArray[np.float64] | None:
+    """Per channel, its noise floor: over every band, the smallest power spectral density of the
+    part of the channel the other two cannot explain (1 / (S^-1)_cc, the Schur complement), in
+    (m/s^2)^2/Hz. White noise of density n on a channel adds exactly n x the band's width to that
+    part in every band (the other channels' cross-spectra do not change), so its floor is at least
+    n; a healthy channel's floor is where the frame and its sensor give least. Bands without power
+    on every channel (beyond Nyquist, a dead channel) are skipped; None when no band is left.
+
+    matrix: the window's (n_bands, 3, 3) band cross-spectra; bands_hz: their n_bands + 1 edges.
+    """
+    widths = np.diff(np.asarray(bands_hz, dtype=np.float64))
+    floors = np.full(3, np.inf)
+    for s, width in zip(matrix, widths, strict=True):
+        power = np.real(np.diagonal(s))
+        if not np.all(power > 0):
+            continue
+        with np.errstate(all="ignore"):
+            try:
+                unexplained = 1.0 / np.real(np.diagonal(np.linalg.inv(s)))
+            except np.linalg.LinAlgError:
+                unexplained = power  # two channels alike in the band: nothing to tell apart there
+        unexplained = np.where(np.isfinite(unexplained) & (unexplained > 0), np.minimum(unexplained, power), power)
+        floors = np.minimum(floors, unexplained / width)
+    return floors if bool(np.all(np.isfinite(floors))) else None
+
+
+def floor_ratios(floors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each channel's floor over the geometric mean of the other two channels' floors: a common rise
+    (rough track, high speed) leaves it, noise of one sensor raises that sensor's alone."""
+    log = np.log(np.maximum(floors, np.finfo(float).tiny))
+    return np.exp(log - (log.sum() - log) / 2.0)
+
+
+def floor_noisy_channels(window: WindowIndicators, settings: HealthSettings) -> list[int]:
+    """The channels whose noise floor lies noise_floor_margin times above both the smallest floor
+    commissioning saw of it and the largest ratio to the other two (module docstring); [] when not
+    in force."""
+    if not settings.noise_floor_psd or window.spectra is None:
+        return []
+    floors = noise_floors(window.spectra.matrix(), window.spectra.bands_hz)
+    if floors is None:
+        return []
+    ratios = floor_ratios(floors)
+    margin = settings.noise_floor_margin
+    return [
+        c for c in range(3)
+        if floors[c] > margin * settings.noise_floor_psd[c] and ratios[c] > margin * settings.noise_floor_ratio[c]
+    ]  # fmt: skip
+
+
+@dataclass(frozen=True)
+class NoiseFloorFit:
+    """What a wagon's healthy windows showed of its sensors' noise floors: per channel the smallest
+    floor, (m/s^2)^2/Hz, and the largest ratio of it to the other two channels'."""
+
+    psd: tuple[float, float, float]
+    ratio: tuple[float, float, float]
+    windows: int
+
+    def health_fields(self) -> dict[str, Any]:
+        """The [health] fields that put this check in force (for the calibration fragment)."""
+        return {"noise_floor_psd": [float(f"{v:.4g}") for v in self.psd], "noise_floor_ratio": [round(v, 4) for v in self.ratio]}
+
+
+def learn_noise_floor(windows: Iterable[WindowIndicators]) -> NoiseFloorFit | None:
+    """The noise floors of a wagon's healthy windows (the judgeable windows of its commissioning
+    runs, sensors sound); None without a window that has one."""
+    rows = []
+    for window in windows:
+        if window.spectra is None:
+            continue
+        floors = noise_floors(window.spectra.matrix(), window.spectra.bands_hz)
+        if floors is not None:
+            rows.append((floors, floor_ratios(floors)))
+    if not rows:
+        return None
+    psd = np.min([f for f, _ in rows], axis=0)
+    ratio = np.max([r for _, r in rows], axis=0)
+    return NoiseFloorFit((float(psd[0]), float(psd[1]), float(psd[2])), (float(ratio[0]), float(ratio[1]), float(ratio[2])), len(rows))
+
+
+def merge_noise_floors(fits: Sequence[NoiseFloorFit | None]) -> NoiseFloorFit | None:
+    """One fit from several commissioning sets (each load state's): what learn_noise_floor gives on
+    their windows together (the smallest floor, the largest ratio)."""
+    present = [f for f in fits if f is not None]
+    if not present:
+        return None
+    psd = np.min([f.psd for f in present], axis=0)
+    ratio = np.max([f.ratio for f in present], axis=0)
+    return NoiseFloorFit((float(psd[0]), float(psd[1]), float(psd[2])), (float(ratio[0]), float(ratio[1]), float(ratio[2])), sum(f.windows for f in present))
+
+
+# --------------------------------------------------------------------------------------------
 # The verdict
 
 
@@ -457,6 +580,11 @@ def assess_window(
         noisy = None if problems else coherence_noisy_channel(window.spectra.matrix(), geometry, settings)
         if noisy is not None:
             flag(CHANNELS[noisy], SensorProblem.NOISY)
+    # The noise floor needs no structure, only the commissioning's floors: any moving window whose
+    # channels are otherwise sound (a dead or stuck one would make the others' ratios look noisy).
+    if gate is not Gate.STANDSTILL and settings.structure_checks and not problems:
+        for c in floor_noisy_channels(window, settings):
+            flag(CHANNELS[c], SensorProblem.NOISY)
     return WindowHealth(gate=gate, problems={k: tuple(v) for k, v in problems.items()})
 
 

@@ -75,16 +75,31 @@ class LoadModel:
 class LoadSignature:
     """A load state the wagon was commissioned in (decision.load_states): its windows' load vector
     (LOAD_NAMES) has this center and robust scale; a window farther than limit (the RMS of its
-    z-scores) is like nothing seen at commissioning."""
+    z-scores) is like nothing seen at commissioning. So is a window excited more gently than any of
+    its commissioning windows (excitation_of, m/s^2): the dry-friction dampers stick the more the
+    gentler the running, and the healthy couplings change with them. Not above: running rougher
+    than the commissioning slides the dampers more, towards the linear regime, and a fault itself
+    may raise the frame's excitation."""
 
     load: str
     center: NDArray[np.float64]
     scale: NDArray[np.float64]
     limit: float
+    lowest_excitation_mps2: float = 0.0
 
     def distance(self, x: NDArray[np.float64]) -> float:
         z = (x - self.center) / self.scale
         return float(np.sqrt(np.mean(z * z)))
+
+    def familiar_excitation(self, window: WindowIndicators) -> bool:
+        """Whether the window is excited at least as much as the gentlest commissioning window."""
+        return excitation_of(window) >= self.lowest_excitation_mps2
+
+
+def excitation_of(window: WindowIndicators) -> float:
+    """A window's excitation: the median channel's RMS after the high-pass, m/s^2 (a faulty sensor
+    moves neither the median nor the gate that uses the same figure, daemon/health.py)."""
+    return float(np.median(window.rms_mps2))
 
 
 def load_features(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[np.float64] | None:
@@ -118,9 +133,10 @@ def nearest_load(
     window: WindowIndicators, geometry: BogieGeometry, states: Sequence[LoadSignature], discriminant: LoadDiscriminant | None = None
 ) -> tuple[str | None, float]:
     """(the commissioned load state of the window, its distance to that state); (None, distance)
-    when it is farther than that state's limit, between the states (the discriminant's margin), or
-    has no load vector (distance NaN). With a discriminant the state is its side of it (within its
-    margin: the nearest state, if on that side); without, the nearest state."""
+    when it is farther than that state's limit, excited more gently than that state's
+    commissioning, between the states (the discriminant's margin), or has no load vector (distance
+    NaN). With a discriminant the state is its side of it (within its margin: the nearest state, if
+    on that side); without, the nearest state."""
     x = load_features(window, geometry)
     if x is None or not states:
         return None, math.nan
@@ -131,10 +147,11 @@ def nearest_load(
             # Within the margin: judged only where the nearest state is on the same side of the
             # line (the two rules agree), else between the states.
             side = "full" if discriminant.value(x) >= 0 else "tare"
-            return (state.load if state.load == side and distance <= state.limit else None), distance
+            familiar = state.load == side and distance <= state.limit and state.familiar_excitation(window)
+            return (state.load if familiar else None), distance
         state = next(s for s in states if s.load == load)
         distance = state.distance(x)
-    return (state.load if distance <= state.limit else None), distance
+    return (state.load if distance <= state.limit and state.familiar_excitation(window) else None), distance
 
 
 # --------------------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ once committed, in order, and nothing is reported before; each failure is logged
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -47,7 +48,8 @@ class MonitorSettings:
     sensor_clear_after_windows: int = 3
     load_model: LoadModel | None = None
     # The load states the wagon was commissioned in: with them, load "auto" takes the nearest, and
-    # a window like none of them is not judged (never an alarm for being unfamiliar).
+    # a window like none of them is not judged (never an alarm for being unfamiliar); with a fixed
+    # load, a window excited more gently than that state's commissioning is not judged either.
     load_states: tuple[LoadSignature, ...] = ()
     load_discriminant: LoadDiscriminant | None = None  # with both states: the wagon's own line between them
 
@@ -95,7 +97,7 @@ class JudgedWindow:
     load: str | None
     p_full: float | None
     # The distance of the window's load vector to the nearest commissioned load state, when it was
-    # farther than that state's limit: the window was not judged.
+    # farther than that state's limit or excited more gently than its commissioning: not judged.
     unfamiliar: float | None = None
 
 
@@ -129,6 +131,10 @@ class WindowJudge:
         if not health.judgeable or self.health.faulted:
             return JudgedWindow(health, None, events, None, None)
         load, p_full, context = s.load, None, {"load_source": "configured"}
+        fixed = next((st for st in s.load_states if st.load == s.load), None)
+        if fixed is not None and not fixed.familiar_excitation(window):
+            # A configured load, commissioned: its excitation range holds as it does for "auto".
+            return JudgedWindow(health, None, events, None, None, unfamiliar=math.nan)
         if s.load == "auto" and s.load_states:
             nearest, distance = nearest_load(window, s.geometry, s.load_states, s.load_discriminant)
             if nearest is None:

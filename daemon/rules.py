@@ -7,7 +7,8 @@ fitting) calls the same functions on whole runs, so what it measures is what a g
 - LEVELS: a deviation from healthy is at ALARM when it reaches the alarm level, else at WARNING
   when it reaches the warning level (>=, so a level is part of its band).
 - CONFIRMATION, k of n: a fault is confirmed once confirm_k of the last confirm_n judged windows
-  are at alarm (fewer than n at the start, as the history fills).
+  are at alarm (fewer than n at the start, as the history fills); SUSPICION once suspicion_k (one
+  fewer, at least one) of them are at warning or above.
 - THE THRESHOLD RULE of calibrate, per indicator, with d = x - median and sigma = 1.4826 * MAD:
 
       warning = max(z(p_warning) * sigma, the (1 - p_warning) quantile of |d|)
@@ -98,6 +99,13 @@ def fit_threshold(values: ArrayLike, warning_rate: float, alarm_rate: float) -> 
     warning = max(two_sided_z(warning_rate) * sigma, float(np.quantile(deviation, 1 - warning_rate)), np.finfo(float).tiny)
     alarm = max(two_sided_z(alarm_rate) * sigma, ALARM_MARGIN * largest, warning)
     return ThresholdFit(warning=warning, alarm=alarm, center=median, robust_sigma=sigma, max_deviation=largest, n_windows=int(x.size))
+
+
+def suspicion_k(confirm_k: int) -> int:
+    """How many of the last confirm_n judged windows at a warning level raise SUSPECTED: one fewer
+    than CONFIRMED asks at the alarm level (at least one), so that a fault building up is suspected
+    a window before it is confirmed, and a single window is never enough unless confirm_k is 1."""
+    return max(1, confirm_k - 1)
 
 
 def confirms(recent_alarms: Iterable[bool], confirm_k: int) -> bool:

@@ -20,6 +20,7 @@ from types import FrameType
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
+from bogiemon.daemon.models import excitation_of
 from bogiemon.daemon.monitor import Monitor, WindowReport
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
@@ -47,7 +48,11 @@ def status_line(report: WindowReport | None, monitor: Monitor) -> str:
     if not report.health.sensors_ok:
         parts.append("sensor fault: " + ", ".join(f"{ch} {'/'.join(p.value for p in ps)}" for ch, ps in report.health.problems.items()))
     if report.unfamiliar is not None:
-        parts.append(f"not judged: the load is unlike the commissioning's, or between its states (distance {report.unfamiliar:.1f})")
+        distance = f"distance {report.unfamiliar:.1f}, " if math.isfinite(report.unfamiliar) else ""
+        parts.append(
+            "not judged: the load, the track or the speed is unlike the commissioning's, or between its load states "
+            f"({distance}excitation {excitation_of(report.window):.2f} m/s^2)"
+        )
     if report.load is not None:
         parts.append(f"load {report.load}" + (f" (p_full {report.p_full:.2f})" if report.p_full is not None else ""))
     if report.judgement is not None:

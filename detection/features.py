@@ -2,10 +2,11 @@
 
 Pure functions of a WindowSpectra and the sensors' geometry (numpy only), used by the daemon's
 judgement and by the evaluation that fits its models. None of them is a fast path: each is a
-few small matrix products per window, on the 7 x 3 x 3 band matrix the core already keeps.
+few small matrix products per window, on the 3 x 3 band matrices the core already keeps.
 
 Bands are detection.spectra.BANDS_HZ: 0 = 0.5-1 Hz, 1 = 1-2, 2 = 2-4, 3 = 4-8, 4 = 8-16,
-5 = 16-32, 6 = 32-64 Hz.
+5 = 16-32, 6 = 32-64 Hz, the judged ones; 7 = 64-128, 8 = 128-181 and 9 = 181-256 Hz, the
+noise-floor bands, are read by the sensor health check alone (daemon/health.py).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.detection.kinematics import BogieGeometry
-from bogiemon.detection.spectra import BANDS_HZ, WindowSpectra, coherency, modal_spectra
+from bogiemon.detection.spectra import BANDS_HZ, N_JUDGED_BANDS, WindowSpectra, coherency, modal_spectra
 
 # Modal indices in the modal cross-spectral matrix.
 BOUNCE, PITCH, ROLL = 0, 1, 2
@@ -35,7 +36,7 @@ COUPLING_NAMES: tuple[str, ...] = tuple(name for name, *_ in COUPLING_FEATURES)
 
 # The load-state features: log share of a mode's power in one band, of its power over all bands.
 LOAD_FEATURES: tuple[tuple[str, int, int], ...] = tuple(
-    (f"{mode}_share_{b}", m, b) for m, mode in enumerate(("bounce", "pitch", "roll")) for b in range(len(BANDS_HZ) - 1)
+    (f"{mode}_share_{b}", m, b) for m, mode in enumerate(("bounce", "pitch", "roll")) for b in range(N_JUDGED_BANDS)
 )
 LOAD_NAMES: tuple[str, ...] = tuple(name for name, *_ in LOAD_FEATURES)
 
@@ -56,8 +57,8 @@ def coupling_vector(spectra: WindowSpectra, geometry: BogieGeometry) -> NDArray[
 
 
 def load_vector(spectra: WindowSpectra, geometry: BogieGeometry) -> NDArray[np.float64]:
-    """The LOAD_FEATURES of one window: log(mode power in band / mode power in all bands)."""
-    power = np.real(np.diagonal(modal_spectra(spectra.matrix(), geometry), axis1=1, axis2=2))  # (bands, 3)
+    """The LOAD_FEATURES of one window: log(mode power in band / mode power in all judged bands)."""
+    power = np.real(np.diagonal(modal_spectra(spectra.matrix()[:N_JUDGED_BANDS], geometry), axis1=1, axis2=2))  # (bands, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
         share = np.log(power / power.sum(axis=0, keepdims=True))
     return np.array([share[b, m] for _, m, b in LOAD_FEATURES])

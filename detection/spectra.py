@@ -32,10 +32,18 @@ from scipy import fft
 
 from bogiemon.detection.kinematics import BogieGeometry
 
-# Octave bands from the high-pass up to 64 Hz. Above that the simulator's frame spectrum is not
-# representative (no wheelset masses, no track flexibility: docs/simulator.md), and a real wagon's
-# is dominated by wheel and rail defects; nothing judged here should depend on it.
-BANDS_HZ: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+# Octave bands from the high-pass up to 64 Hz: the JUDGED bands, everything the suspension's
+# features read (detection/features.py). Above that model A's frame spectrum is not representative
+# (no wheelset masses, no track flexibility: docs/simulator.md), and a real wagon's is dominated by
+# wheel and rail defects; no judgement of the suspension should depend on it.
+JUDGED_BANDS_HZ: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+N_JUDGED_BANDS = len(JUDGED_BANDS_HZ) - 1
+# Above them the NOISE-FLOOR bands, 64-128 Hz and the two half octaves 128-181 and 181-256 Hz (no
+# bin lies beyond Nyquist: at the default 500 Hz the last one ends at 250 Hz, in the accelerometers'
+# anti-alias roll-off, where a bogie frame gives least and white noise that enters after the filter
+# stands out by orders of magnitude; at a lower rate the bands above Nyquist are empty). Only the
+# sensor health check reads them (daemon/health.py: the noise floor).
+BANDS_HZ: tuple[float, ...] = JUDGED_BANDS_HZ + (128.0, 181.0, 256.0)
 N_BANDS = len(BANDS_HZ) - 1
 # The channel pairs of the off-diagonal entries, in the order stored.
 PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 2))

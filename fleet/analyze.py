@@ -43,8 +43,9 @@ from bogiemon.drivers.replay import open_replay
 from bogiemon.fleet import rows
 from bogiemon.fleet.layout import Day, Fleet, InputFile, Issue, Wagon, scan_fleet
 
-# 2: the channels' hop RMS range (the non-stationary gate) in every row.
-FORMAT = 2
+# 2: the channels' hop RMS range (the non-stationary gate) in every row; 3: the spectra's three
+# noise-floor bands above 64 Hz (the sensor noise-floor check).
+FORMAT = 3
 PART_FILE = "part-0.parquet"
 METADATA_KEY = b"bogiemon"
 SUMMARY_FILE = "_analysis.json"

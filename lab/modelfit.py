@@ -15,13 +15,18 @@ standardised, an L2 penalty of 1e-3, Newton's method; every training window, hea
 
 FUSED MODEL, per load: the calibrated wagon's spread is the covariance of the training wagons'
 healthy coupling vectors around each wagon's own mean (pooled). Its levels come out of sample:
-each training wagon is "commissioned" on its first healthy runs (the center: as many as the
-evaluation fleet's commissioning) and
-its other healthy runs are scored, in order, as one stretch of running; a run's sustained score is
-the largest value that k of n consecutive windows reach (daemon/rules.py sustained_level: the highest level k of n confirms at); the alarm level
-is the larger of 1.1 x the largest sustained score and the level an exponential tail fitted to
-the upper quarter of the runs' sustained scores exceeds once in TARGET_RUNS_PER_ALARM runs; the
-warning level is the 99th percentile of the scored windows. The trend (the exponentially weighted
+each training wagon is commissioned on its first healthy runs (as many as the evaluation fleet's
+commissioning) by the daemon's own rule (daemon/commissioning.py fit_spread: its own shrunk spread,
+the other training wagons' as the prior) and its other healthy runs are scored against that
+baseline, divided by the level factor the commissioning applies, in order, as one stretch of
+running; a run's sustained score is
+the largest value that k of n consecutive windows reach (daemon/rules.py sustained_level: the
+highest level k of n confirms at); the alarm level is the larger of 1.1 x the largest sustained
+score and the level an exponential tail fitted to the upper quarter of the runs' sustained scores
+exceeds once in TARGET_RUNS_PER_ALARM runs. SUSPECTED asks for one window fewer of n at the warning
+level (daemon/rules.py suspicion_k), so the warning level is the larger of the largest value that
+many windows sustain and the tail's level once in TARGET_RUNS_PER_WARNING runs, on the runs'
+values at that count (never above the alarm level). The trend (the exponentially weighted
 mean of the whitened shifts, time constant TREND_TAU_S of running, carried from run to run) gets
 its levels by the same rule on each run's largest trend value. The population baseline (a wagon
 without calibration) is the same with the center and covariance of the whole fleet, scored
@@ -49,25 +54,27 @@ from numpy.typing import NDArray
 
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.health import HealthSettings, assess_window
+from bogiemon.daemon.commissioning import fit_spread
 from bogiemon.daemon.models import (
     FUSED_MODEL_FILE,
     LOAD_MODEL_FILE,
     SIGNATURES_FILE,
     FusedModel,
+    Levels,
     coupling_features,
     whitening_of,
 )
-from bogiemon.daemon.rules import ALARM_MARGIN, sustained_level, trend_weight
+from bogiemon.daemon.rules import ALARM_MARGIN, suspicion_k, sustained_level, trend_weight
 from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, load_vector
 
 LOAD_FEATURES = ("bounce_share_3", "bounce_share_5", "roll_share_2", "roll_share_6")
 LOAD_L2 = 1e-3
 TARGET_RUNS_PER_ALARM = 6000.0  # about one false alarm per 1000 h of 10-minute runs
+TARGET_RUNS_PER_WARNING = 600.0  # about one SUSPECTED per 100 h: a tenth of issue 16's 1 % of runs
 # The trend's time constant: long enough to span several track sections and speeds (a healthy
 # wagon's couplings move with them), short enough to confirm a standing fault within an hour.
 TREND_TAU_S = 1800.0
-WARNING_QUANTILE = 0.99
 SHARPNESS_GRID = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0, 50.0)
 MIN_CONFIDENCE = 0.5
 
@@ -143,15 +150,21 @@ class _Levels:
 
 
 def _levels(score_runs: Sequence[NDArray[np.float64]], confirm_k: int, confirm_n: int) -> _Levels:
-    """Levels of a score judged k of n: from each run's sustained score."""
-    return _levels_of([sustained_level(s, confirm_k, confirm_n) for s in score_runs if len(s) >= confirm_k], score_runs)
+    """Levels of a score judged k of n (SUSPECTED: suspect_k of n): from each run's sustained scores."""
+    suspect_k = suspicion_k(confirm_k)
+    confirming = [sustained_level(s, confirm_k, confirm_n) for s in score_runs if len(s) >= confirm_k]
+    suspecting = [sustained_level(s, suspect_k, confirm_n) for s in score_runs if len(s) >= suspect_k]
+    return _levels_of(confirming, score_runs, suspecting)
 
 
-def _levels_of(maxima: Sequence[float], score_runs: Sequence[NDArray[np.float64]]) -> _Levels:
+def _levels_of(maxima: Sequence[float], score_runs: Sequence[NDArray[np.float64]], warning_maxima: Sequence[float] | None = None) -> _Levels:
+    """The levels from each run's largest sustained value (maxima); the warning level from
+    warning_maxima where SUSPECTED asks for fewer windows than CONFIRMED (None: the same)."""
     everything = np.concatenate(score_runs)
     tail = tail_level(maxima, TARGET_RUNS_PER_ALARM)
     alarm = max(ALARM_MARGIN * max(maxima), tail)
-    warning = min(float(np.quantile(everything, WARNING_QUANTILE)), alarm)
+    suspect = maxima if warning_maxima is None else warning_maxima
+    warning = min(max(max(suspect), tail_level(suspect, TARGET_RUNS_PER_WARNING)), alarm)
     return _Levels(warning, alarm, max(maxima), tail, len(maxima), len(everything))
 
 
@@ -207,6 +220,17 @@ def _vectors(windows: Sequence[WindowIndicators], geometry: BogieGeometry) -> ND
     return np.array([r for r in rows if r is not None]).reshape(-1, len(COUPLING_NAMES))
 
 
+def _prior(covariance: NDArray[np.float64], processing: ProcessingSettings, calibration_median_score: float) -> FusedModel:
+    """The fused model a commissioning starts from, with unit levels (only its spread and its
+    calibration median matter to fit_spread's baseline and level factor)."""
+    n = covariance.shape[0]
+    unit = Levels(1.0, 1.0, 1.0, 1.0)
+    return FusedModel(
+        "prior", COUPLING_NAMES, processing.window_s, processing.hop_s, covariance, unit, TREND_TAU_S,
+        np.zeros(n), covariance, unit, calibration_median_score,
+    )  # fmt: skip
+
+
 def fit_fused(
     runs: Sequence[TrainingRun],
     geometry: BogieGeometry,
@@ -223,17 +247,31 @@ def fit_fused(
             if run.load == load and run.key == "healthy":
                 by_wagon.setdefault(run.wagon, []).append(_vectors(_judged(run.windows, geometry, health), geometry))
         wagons = sorted(by_wagon)
-        residuals = [np.concatenate(v) - np.concatenate(v).mean(axis=0) for v in by_wagon.values()]
-        within = np.cov(np.concatenate(residuals).T)
+        residuals = {w: np.concatenate(v) - np.concatenate(v).mean(axis=0) for w, v in by_wagon.items()}
+        within = np.cov(np.concatenate(list(residuals.values())).T)
         whitening = whitening_of(within)
-        # Calibrated wagons, out of sample: the first runs are the commissioning.
-        scored, trends, calibration_medians = [], [], []
+        calibration_medians = []
+        for wagon in wagons:
+            cal = np.concatenate(by_wagon[wagon][:calibration_runs])
+            calibration_medians.append(float(np.median(_score(cal, cal.mean(axis=0), whitening))))
+        # Calibrated wagons, out of sample, as the daemon commissions them: each training wagon's
+        # first runs are its commissioning (daemon/commissioning.py fit_spread, with the spread of
+        # the other training wagons as its prior, as a wagon outside the training fleet gets it),
+        # the rest are scored against the baseline it learns, in units of the level factor it
+        # applies: the shipped levels are what that factor multiplies.
+        scored, trends = [], []
         for wagon in wagons:
             cal, rest = by_wagon[wagon][:calibration_runs], by_wagon[wagon][calibration_runs:]
-            center = np.concatenate(cal).mean(axis=0)
-            calibration_medians.append(float(np.median(_score(np.concatenate(cal), center, whitening))))
-            scored += [_score(v, center, whitening) for v in rest]
-            trends += trend_runs([(v - center) @ whitening.T for v in rest], processing.hop_s)
+            others = np.concatenate([residuals[o] for o in wagons if o != wagon]) if len(wagons) > 1 else residuals[wagon]
+            prior = _prior(np.cov(others.T), processing, float(np.median(calibration_medians)))
+            bounds = np.cumsum([0] + [len(v) for v in cal])
+            fit = fit_spread(
+                np.concatenate(cal), [list(range(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)], prior, processing.hop_s,
+                confirm_k, confirm_n,
+            )  # fmt: skip
+            own = whitening_of(fit.covariance)
+            scored += [_score(v, fit.center, own) / fit.level_factor for v in rest]
+            trends += trend_runs([(v - fit.center) @ own.T for v in rest], processing.hop_s)
         calibrated = _levels(scored, confirm_k, confirm_n)
         calibrated_trend = _levels_of([float(t.max()) for t in trends if len(t)], trends)
         # The population, leave one wagon out.

@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
     if result.structure is not None:
         checks = ", ".join(result.structure.checks) or "none (no SWAPPED or INVERTED will be reported)"
         print(f"  sensor structure checks in force: {checks}", file=sys.stderr)
+    if result.noise_floor is not None:
+        floors = ", ".join(f"a{c + 1} {v ** 0.5 * 1e3:.3g}" for c, v in enumerate(result.noise_floor.psd))
+        print(f"  sensors' noise floors (smallest seen, mm/s^2 per sqrt(Hz)): {floors}", file=sys.stderr)
     for ld, n in result.skipped.items():
         print(f"  {ld}: only {n} windows, not calibrated (record longer runs in that load state)", file=sys.stderr)
     for load in result.loads:

@@ -40,7 +40,7 @@ from bogiemon.daemon.diagnosis import SIGN_BANDS, softer_signs
 from bogiemon.daemon.models import UNKNOWN, coupling_features
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings
 from bogiemon.detection.features import COUPLING_FEATURES, COUPLING_NAMES, PITCH
-from bogiemon.detection.spectra import BANDS_HZ
+from bogiemon.detection.spectra import JUDGED_BANDS_HZ as BANDS_HZ
 from bogiemon.lab.robust.fleet import EvaluationData, EvaluationPlan, RunSpec, fault_cells, simulate_plan
 from bogiemon.lab.robust.judge import DaemonMethod, judge_runs, with_overrides
 from bogiemon.lab.study.plan import table4_cases

@@ -16,7 +16,9 @@ wagon's leading bogie; a run in the other direction is emulated by mirroring the
 the corners (x -> -x, y -> -y: the config still names the corners for the reference direction), so
 the monitored bogie leads the wagon in both directions (on a real wagon it would trail, coupled to
 the other bogie through the carbody). Per wagon and load:
-- commissioning: CALIBRATION runs of the healthy wagon, what the keeper records to calibrate;
+- commissioning: CALIBRATION runs of the healthy wagon, what the keeper records to calibrate, as
+  the README asks (every track quality, both directions, from the low and the high end of the
+  speed range: draw_conditions); the training wagons' first runs likewise;
 - healthy test runs: the same wagon later, other tracks and speeds, for the false alarms;
 - fault runs: a healthy lead-in that fills the windows, then the fault appears under the running
   wagon (the simulator's fault onset) and the run goes on; a run counts as detected when the
@@ -165,12 +167,17 @@ class RunSpec:
     duration_s: float
     onset_s: float = 0.0  # the fault appears this far into the run (0: healthy run)
     damage: str | None = None  # role "sensor": what is wrong with a sensor (SENSOR_DAMAGE)
+    # A commissioning run (an evaluation wagon's, or the first runs of a training wagon's, which
+    # the model fitting commissions it on): its conditions follow the README's instruction
+    # (draw_conditions), not the random draw of the running that follows.
+    commissioning: bool = False
 
     @property
     def name(self) -> str:
         where = self.corner.value if self.corner else "-"
         damage = f"|{self.damage}" if self.damage else ""
-        return f"{self.role}|{self.wagon}|{self.load}|{self.key}|{self.severity:g}|{where}|{self.number}{damage}"
+        planned = "|commissioning" if self.commissioning else ""
+        return f"{self.role}|{self.wagon}|{self.load}|{self.key}|{self.severity:g}|{where}|{self.number}{damage}{planned}"
 
     @property
     def seed(self) -> int:
@@ -195,11 +202,20 @@ class Conditions:
 
 
 def draw_conditions(run: RunSpec) -> Conditions:
-    """The run's track, speed profile and direction, from its own seed (reproducible alone)."""
+    """The run's track, speed profile and direction, from its own seed (reproducible alone).
+
+    A commissioning run follows the README's instruction to a keeper (every track quality, both
+    directions of travel, the whole speed range): its number k takes track k modulo the tracks, the
+    reverse direction when k is odd, and a speed starting in the lowest or (k // 2 odd) the highest
+    quarter of the range, from where it drifts as any run's does."""
     rng = np.random.default_rng([run.seed, 1])
     track = TRACKS[int(rng.integers(len(TRACKS)))]
     n_points = int(math.ceil(run.duration_s / SPEED_POINT_EVERY_S)) + 1
     speeds = [float(rng.uniform(SPEED_MIN_KMH, SPEED_MAX_KMH))]
+    if run.commissioning:
+        track = TRACKS[run.number % len(TRACKS)]
+        quarter = (SPEED_MAX_KMH - SPEED_MIN_KMH) / 4.0
+        speeds = [SPEED_MAX_KMH - quarter * float(rng.uniform()) if (run.number // 2) % 2 else SPEED_MIN_KMH + quarter * float(rng.uniform())]
     for _ in range(n_points - 1):
         v = speeds[-1] + rng.normal(0.0, SPEED_STEP_SD_KMH)
         # Reflected at the limits (clipping would pile the speeds up at 50 and 110 km/h).
@@ -207,7 +223,7 @@ def draw_conditions(run: RunSpec) -> Conditions:
         v = 2 * SPEED_MAX_KMH - v if v > SPEED_MAX_KMH else v
         speeds.append(float(np.clip(v, SPEED_MIN_KMH, SPEED_MAX_KMH)))
     points = tuple((k * SPEED_POINT_EVERY_S, round(v, 3)) for k, v in enumerate(speeds))
-    reversed_ = bool(rng.integers(2))
+    reversed_ = bool(rng.integers(2)) if not run.commissioning else bool(run.number % 2)
     if run.role == "standing":
         points = ((0.0, 0.0),)
     elif run.role == "stops":
@@ -327,7 +343,9 @@ class EvaluationPlan:
         out: list[RunSpec] = []
         for w in range(self.n_wagons):
             for load in self.loads:
-                out += [RunSpec("calibration", w, load, HEALTHY, 1.0, None, r, self.calibration_s) for r in range(self.calibration_runs)]
+                out += [
+                    RunSpec("calibration", w, load, HEALTHY, 1.0, None, r, self.calibration_s, commissioning=True) for r in range(self.calibration_runs)
+                ]
                 out += [RunSpec("healthy", w, load, HEALTHY, 1.0, None, r, self.healthy_s) for r in range(self.healthy_runs)]
         out += self._fault_runs("fault", self.n_wagons, self.fault_runs, self.lead_in_s, self.lead_in_s + self.fault_s, self.fault_cases)
         out += self._trend_runs()
@@ -344,7 +362,10 @@ class EvaluationPlan:
                 out += [RunSpec("standing", w, load, HEALTHY, 1.0, None, r, self.standing_s) for r in range(self.standing_runs)]
         for w in range(self.n_training_wagons):
             for load in self.loads:
-                out += [RunSpec("train-healthy", w, load, HEALTHY, 1.0, None, r, self.training_healthy_s) for r in range(self.training_healthy_runs)]
+                out += [
+                    RunSpec("train-healthy", w, load, HEALTHY, 1.0, None, r, self.training_healthy_s, commissioning=r < self.calibration_runs)
+                    for r in range(self.training_healthy_runs)
+                ]
         out += self._fault_runs(
             "train-fault", self.n_training_wagons, self.training_fault_runs, 0.0, self.training_fault_s, self.training_fault_cases, self.training_corners
         )

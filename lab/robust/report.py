@@ -227,7 +227,7 @@ def direction_rows(data: EvaluationData, load: str = "full") -> list[list[str]]:
     between runs of one wagon, and the effect of the direction of travel (half the difference of
     a wagon's means in the two directions, rms over wagons): why bounce-pitch is not judged."""
     from bogiemon.detection.features import modal_coherency
-    from bogiemon.detection.spectra import BANDS_HZ
+    from bogiemon.detection.spectra import JUDGED_BANDS_HZ as BANDS_HZ
 
     pairs = (("pitch-roll", 1, 2), ("bounce-roll", 0, 2), ("bounce-pitch", 0, 1))
     per_wagon: dict[int, list[tuple[bool, np.ndarray]]] = {}

@@ -120,6 +120,47 @@ def test_a_wagon_that_scatters_more_out_of_sample_gets_higher_levels() -> None:
     assert restless.levels.trend_alarm > calm.levels.trend_alarm >= model.levels.trend_alarm
 
 
+def test_the_window_levels_stay_above_what_the_wagons_own_runs_sustained_out_of_sample() -> None:
+    model = shipped_models().fused["full"]
+    rng = np.random.default_rng(6)
+    p = model.covariance.shape[0]
+    rows = rng.multivariate_normal(np.zeros(p), model.covariance, size=300)
+    rows[140:145] += 6.0 * np.sqrt(np.diag(model.covariance))  # one run holds a stretch far off
+    runs = [list(range(i * 50, (i + 1) * 50)) for i in range(6)]
+    fit = fit_spread(rows, runs, model, 10.0, confirm_k=3, confirm_n=5)
+    confirming, suspecting = [], []
+    for run in runs:
+        others = np.setdiff1d(np.arange(len(rows)), run)
+        cov, _ = shrunk_covariance(rows[others], model.covariance, len(others) / (model.window_s / model.hop_s))
+        z = (rows[run] - rows[others].mean(axis=0)) @ np.linalg.inv(np.linalg.cholesky(cov)).T
+        score = np.einsum("ij,ij->i", z, z)
+        confirming.append([sorted(score[k : k + 5])[-3] for k in range(len(score) - 4)])  # 3 of 5 reach it
+        suspecting.append([sorted(score[k : k + 5])[-2] for k in range(len(score) - 4)])  # 2 of 5
+    largest = max(max(c) for c in confirming)
+    assert fit.levels.alarm == pytest.approx(max(model.levels.alarm * fit.level_factor, 1.1 * largest))
+    assert fit.levels.alarm > model.levels.alarm * fit.level_factor  # the far-off stretch set it
+    assert fit.levels.warning >= max(max(s) for s in suspecting)
+
+
+def test_a_window_gentler_than_the_whole_commissioning_is_not_judged(commissioned) -> None:  # type: ignore[no-untyped-def]
+    # The dampers stick more the gentler the running: a smooth track at walking pace on a loaded
+    # wagon is like nothing the commissioning saw, whatever its load vector says.
+    result, config = commissioned
+    full = next(c for c in result.loads if c.load == "full")
+    assert full.signature is not None and full.signature.lowest_excitation_mps2 > 0
+    assert config.decision.load_states["full"].lowest_excitation_mps2 == pytest.approx(full.signature.lowest_excitation_mps2, abs=1e-4)
+    windows = _windows(_scenario("full", 24, "erri-low", 35.0), config)
+    gentle = [w for w in windows if float(np.median(w.rms_mps2)) < full.signature.lowest_excitation_mps2]
+    assert gentle, "the gentle run should lie below the commissioning's excitation"
+    for settings in (config.monitor_settings(), config.monitor_settings(load="full")):
+        judge = WindowJudge(settings)
+        for w in gentle:
+            judged = judge.judge(w)
+            assert judged.judgement is None and judged.unfamiliar is not None
+    states = config.load_signatures()
+    assert all(nearest_load(w, config.bogie_geometry(), states, config.load_discriminant())[0] is None for w in gentle)
+
+
 def test_priors_can_come_from_another_folder_and_a_missing_one_is_a_clear_error(tmp_path: Path) -> None:
     from importlib import resources
 

@@ -42,24 +42,58 @@ def test_levels_apply_to_the_deviation_from_the_center(value: float, level: Leve
 
 
 def test_confirmation_needs_k_of_the_last_n_alarm_windows() -> None:
-    # warning, alarm, ok, alarm, ok, alarm: the 3rd alarm within 5 judged windows confirms.
+    # warning, alarm (2 of 2 at warning or above: suspected), ok, alarm, ok, alarm (the 3rd alarm
+    # within 5 judged windows: confirmed).
     events = run(Decider(SETTINGS, "cfg"), [0.16, 0.3, 0.0, 0.3, 0.0, 0.3])
-    assert events == [(0, EventKind.SUSPECTED), (5, EventKind.CONFIRMED)]
+    assert events == [(1, EventKind.SUSPECTED), (5, EventKind.CONFIRMED)]
+
+
+def test_a_gross_fault_is_suspected_a_window_before_it_is_confirmed() -> None:
+    assert run(Decider(SETTINGS, "cfg"), [0.0, 0.3, 0.3, 0.3]) == [(2, EventKind.SUSPECTED), (3, EventKind.CONFIRMED)]
 
 
 def test_alarms_spread_wider_than_n_never_confirm() -> None:
-    events = run(Decider(SETTINGS, "cfg"), [0.3, 0.16, 0.16, 0.16, 0.16, 0.3, 0.16, 0.16, 0.16, 0.16, 0.3])
-    assert [kind for _, kind in events] == [EventKind.SUSPECTED]
+    events = run(Decider(SETTINGS, "cfg"), [0.3, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.3])
+    assert events == []
+
+
+def test_suspicion_needs_k_minus_one_of_the_last_n_windows_at_warning() -> None:
+    # One warning window within five is the healthy wagon's scatter; a second within five is a suspicion.
+    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.0, 0.0, 0.0, 0.0, 0.16, 0.0, 0.0, 0.0, 0.16])
+    assert events == [(9, EventKind.SUSPECTED)]  # windows 5 and 9: two within five
+
+
+def test_single_warning_windows_never_raise_a_suspicion() -> None:
+    assert run(Decider(SETTINGS, "cfg"), [0.16, 0.0, 0.0, 0.0, 0.0, 0.16, 0.0, 0.0, 0.0, 0.0, 0.16]) == []
+
+
+def test_with_one_window_to_confirm_one_window_suspects() -> None:
+    settings = dataclasses.replace(SETTINGS, confirm_k=1, confirm_n=1)
+    assert run(Decider(settings, "cfg"), [0.0, 0.16, 0.3]) == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
+
+
+def test_the_suspicion_states_how_many_windows_raised_it() -> None:
+    decider = Decider(SETTINGS, "cfg")
+    run(decider, [0.16, 0.0])
+    _, events = decider.update(window(0.16, t=20.0), "full")
+    (event,) = events
+    assert event.kind is EventKind.SUSPECTED and event.details["warning_windows"] == "2 of 3"
 
 
 def test_clearing_needs_consecutive_windows_below_warning() -> None:
     # Confirm, then warning-level windows (below alarm) keep the alarm: hysteresis.
     events = run(Decider(SETTINGS, "cfg"), [0.3, 0.3, 0.3, 0.16, 0.16, 0.0, 0.16, 0.0, 0.0])
-    assert events == [(0, EventKind.SUSPECTED), (2, EventKind.CONFIRMED), (8, EventKind.CLEARED)]
+    assert events == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED), (8, EventKind.CLEARED)]
 
 
 def test_a_suspicion_alone_clears_too() -> None:
-    assert run(Decider(SETTINGS, "cfg"), [0.16, 0.0, 0.0]) == [(0, EventKind.SUSPECTED), (2, EventKind.CLEARED)]
+    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.16, 0.0, 0.0])
+    assert events == [(1, EventKind.SUSPECTED), (3, EventKind.CLEARED)]
+
+
+def test_a_cleared_suspicion_needs_new_warning_windows_again() -> None:
+    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.16, 0.0, 0.0, 0.16, 0.0, 0.16])
+    assert events == [(1, EventKind.SUSPECTED), (3, EventKind.CLEARED), (6, EventKind.SUSPECTED)]
 
 
 def test_confirmed_event_carries_the_indicators_that_fired_and_the_config_hash() -> None:
@@ -76,12 +110,19 @@ def test_confirmed_event_carries_the_indicators_that_fired_and_the_config_hash()
 
 def test_state_survives_a_round_trip_and_a_restart() -> None:
     first = Decider(SETTINGS, "cfg")
-    run(first, [0.3, 0.3])
+    run(first, [0.16, 0.16, 0.0, 0.3, 0.3])
     saved = first.state.as_dict()
     second = Decider(SETTINGS, "cfg", DecisionState.from_dict(saved))
     assert second.state.mode is Mode.SUSPECTED
     _, events = second.update(window(0.3), "full")
     assert [e.kind for e in events] == [EventKind.CONFIRMED]
+
+
+def test_a_state_saved_before_the_warning_history_loads_with_none() -> None:
+    saved = Decider(SETTINGS, "cfg").state.as_dict()
+    del saved["recent_warnings"]
+    state = DecisionState.from_dict(saved)
+    assert list(state.recent_warnings) == [] and state.mode is Mode.NORMAL
 
 
 def test_nan_indicators_never_raise_a_level() -> None:

@@ -87,29 +87,32 @@ def test_the_window_score_is_the_squared_whitened_shift() -> None:
 
 
 def test_three_alarm_windows_of_five_confirm_by_windows() -> None:
-    gross = np.full(N, 0.25)  # score 62.5 per window: alarm
+    # Score 74.5 per window: alarm; 3.5 healthy sd at 4-8 Hz, where the diagnosis reads the signs.
+    gross = np.array([0.35 if band == 3 else 0.25 for *_, band in COUPLING_FEATURES])
     events = feed(Decider(settings(), "cfg"), [gross] * 3)
     kinds = [(i, k) for i, k, _ in events]
-    assert kinds == [(0, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
+    assert kinds == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
     assert events[-1][2]["trigger"] == "windows"
     assert events[-1][2]["diagnosis"]["corner"] == "leading-left"
 
 
 def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> None:
-    # Score 10 per window: below the window warning (20); the trend converges to 10 > 8.
-    small = np.full(N, 0.1)
+    # Score 12.5 per window: below the window warning (20); the trend converges to 12.5 > 8. The
+    # 4-8 Hz couplings, which the diagnosis reads, carry a little more of it (3.4 sd of the trend's
+    # healthy spread: a clear sign).
+    small = np.array([0.15 if band == 3 else 0.1 for *_, band in COUPLING_FEATURES])
     decider = Decider(settings(), "cfg")
     events = feed(decider, [small] * 200)
     confirmed = [(i, d) for i, k, d in events if k is EventKind.CONFIRMED]
     assert len(confirmed) == 1
     i, details = confirmed[0]
     weight = 1 - math.exp(-HOP_S / 600.0)
-    # The first window at which 10 (1 - (1 - w)^(i+1))^2 reaches the trend alarm level of 8.
-    expected = next(k for k in range(200) if 10 * (1 - (1 - weight) ** (k + 1)) ** 2 >= 8.0)
+    # The first window at which 12.5 (1 - (1 - w)^(i+1))^2 reaches the trend alarm level of 8.
+    expected = next(k for k in range(200) if 12.5 * (1 - (1 - weight) ** (k + 1)) ** 2 >= 8.0)
     assert i == expected
     assert details["trigger"] == "trend"
     assert details["diagnosis"]["corner"] == "leading-left" and details["diagnosis"]["kind"] == "unknown"
-    assert details["trend"] == pytest.approx(10 * (1 - (1 - weight) ** (i + 1)) ** 2)
+    assert details["trend"] == pytest.approx(12.5 * (1 - (1 - weight) ** (i + 1)) ** 2)
     assert [k for _, k, _ in events][0] is EventKind.SUSPECTED
 
 

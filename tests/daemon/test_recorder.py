@@ -363,5 +363,9 @@ def test_the_confirmed_snapshot_of_a_broken_spring_replayed_alone_from_a_fresh_s
     replay([snapshot], config, sinks=[sink])  # a fresh event store of its own
     (replayed,) = [e for e in sink.events if e.kind is EventKind.CONFIRMED]
     assert replayed.time_s == pytest.approx(confirmed.time_s, abs=1e-3)  # at the same window
-    assert replayed.details["diagnosis"]["corner"] == confirmed.details["diagnosis"]["corner"] == "leading-left"
+    # The same diagnosis offline as onboard; its corner the broken spring's, or "unknown" where the
+    # three confirming windows' 4-8 Hz couplings do not single it out (daemon/diagnosis.py).
+    assert replayed.details["diagnosis"] == confirmed.details["diagnosis"]
+    assert confirmed.details["diagnosis"]["corner"] in ("leading-left", "unknown")
+    assert confirmed.details["diagnosis"]["best_match"].endswith("leading-left if softer")
     assert replayed.details["alarm_windows"] == confirmed.details["alarm_windows"]

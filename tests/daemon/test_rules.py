@@ -12,7 +12,7 @@ from scipy import stats
 
 from bogiemon.daemon.decision import Decider, DecisionSettings
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.rules import Level, Threshold, first_confirmation, fit_threshold, level_of, sustained_level
+from bogiemon.daemon.rules import Level, Threshold, first_confirmation, fit_threshold, level_of, suspicion_k, sustained_level
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 
@@ -96,3 +96,7 @@ def test_first_confirmation_of_a_run_is_where_the_deciders_state_machine_confirm
         if confirmed_at is None and any(e.kind is EventKind.CONFIRMED for e in events):
             confirmed_at = i
     assert first_confirmation(alarms, k, n) == confirmed_at
+
+
+def test_a_suspicion_asks_one_window_fewer_than_a_confirmation_and_at_least_one() -> None:
+    assert [suspicion_k(k) for k in (1, 2, 3, 5)] == [1, 1, 2, 4]

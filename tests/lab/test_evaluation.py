@@ -16,6 +16,7 @@ from bogiemon.lab.robust.evaluate import EvaluateError, daemon_methods, load_or_
 from bogiemon.lab.robust.fleet import (
     HEALTHY,
     SENSOR_DAMAGE,
+    TRACKS,
     EvaluationPlan,
     RunSpec,
     damage_sensors,
@@ -49,6 +50,22 @@ def test_a_runs_conditions_are_reproducible_and_the_speed_stays_in_its_range() -
     speeds = [v for _, v in first.speed.points]
     assert all(50.0 <= v <= 110.0 for v in speeds)
     assert draw_conditions(replace(run, number=4)) != first
+
+
+def test_commissioning_runs_cover_every_track_both_directions_and_both_ends_of_the_speed_range() -> None:
+    # As the README asks a keeper; the running that follows keeps its random draw.
+    plan = EvaluationPlan.default()
+    runs = [r for r in plan.runs() if r.role == "calibration" and r.wagon == 0 and r.load == "full"]
+    assert all(r.commissioning for r in runs) and len(runs) == plan.calibration_runs
+    conditions = [draw_conditions(r) for r in runs]
+    assert {c.track for c in conditions} == set(TRACKS)
+    assert [c.reversed for c in conditions] == [k % 2 == 1 for k in range(len(runs))]
+    starts = [c.speed.points[0][1] for c in conditions]
+    assert all(v <= 65.0 for k, v in enumerate(starts) if (k // 2) % 2 == 0)
+    assert all(v >= 95.0 for k, v in enumerate(starts) if (k // 2) % 2 == 1)
+    training = [r for r in plan.runs() if r.role == "train-healthy" and r.wagon == 0 and r.load == "full"]
+    assert [r.commissioning for r in training] == [r.number < plan.calibration_runs for r in training]
+    assert not any(r.commissioning for r in plan.runs() if r.role in ("healthy", "fault", "trend", "sensor"))
 
 
 def test_the_default_plan_holds_every_fault_cell_on_every_corner_and_100_healthy_hours() -> None:

@@ -96,7 +96,7 @@ def test_healthy_runs_of_the_commissioned_wagon_confirm_nothing(fleet_runs, comm
     for s, accel in fleet_runs.items():
         if s.role == "healthy":
             events, _ = judge(commissioned, accel)
-            # A SUSPECTED now and then is the warning level doing its job (docs/robust: about one per 2 h).
+            # A SUSPECTED now and then is the warning level doing its job (about one per 100 h by design).
             assert {e.kind.value for e in events} <= {"SUSPECTED", "CLEARED"}, s.name
 
 

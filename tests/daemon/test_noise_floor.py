@@ -1,0 +1,160 @@
+"""The sensors' noise floor: learned at commissioning, a noisy sensor named, the healthy frame never."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import signal
+
+from bogiemon.daemon import tomlout
+from bogiemon.daemon.config import ConfigError, parse_config
+from bogiemon.daemon.health import (
+    HealthSettings,
+    SensorProblem,
+    assess_window,
+    floor_noisy_channels,
+    learn_noise_floor,
+    merge_noise_floors,
+    noise_floors,
+)
+from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings, WindowIndicators, from_modal
+from bogiemon.detection.spectra import BANDS_HZ, N_BANDS, WindowSpectra
+
+FS_HZ = 500.0
+SETTINGS = ProcessingSettings(fs_hz=FS_HZ, window_s=20.0, hop_s=5.0, max_lag_s=2.0)
+GEOMETRY = BogieGeometry()
+
+
+def frame_run(seed: int, duration_s: float = 60.0, hiss_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0), gain: float = 1.0) -> list[WindowIndicators]:
+    """Windows of a rigid frame driven by three independent inputs below 30 Hz (a bogie frame seen
+    through anti-alias filters gives little above), each sensor with its own small white noise
+    (0.002 m/s^2 per sample) and, per channel, extra white noise of hiss_mps2 RMS per sample."""
+    rng = np.random.default_rng(seed)
+    n = int(duration_s * FS_HZ)
+    sos = signal.butter(4, 30.0, fs=FS_HZ, output="sos")
+    modal = signal.sosfilt(sos, rng.normal(size=(n, 3)), axis=0) * gain * np.array([2.0, 1.5, 1.5])
+    accel = from_modal(modal, GEOMETRY) + 9.81
+    accel += rng.normal(0.0, 0.002, size=(n, 3)) + rng.normal(size=(n, 3)) * np.asarray(hiss_mps2)
+    return IndicatorStream(SETTINGS, GEOMETRY).process(accel)
+
+
+def commissioned(seeds=(1, 2, 3)) -> HealthSettings:
+    fit = learn_noise_floor(w for s in seeds for w in frame_run(s))
+    assert fit is not None
+    return dataclasses.replace(HealthSettings(), noise_floor_psd=fit.psd, noise_floor_ratio=fit.ratio)
+
+
+def schur_reference(s: np.ndarray, c: int) -> float:
+    """S_cc - S_co S_oo^-1 S_oc: the part of channel c the other two cannot explain, written out."""
+    others = [k for k in range(3) if k != c]
+    s_oo = s[np.ix_(others, others)]
+    s_co = s[c, others]
+    return float(np.real(s[c, c] - s_co @ np.linalg.solve(s_oo, s_co.conj())))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_floor_is_the_smallest_unexplained_density_over_the_bands(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    h = rng.normal(size=(N_BANDS, 3, 4)) + 1j * rng.normal(size=(N_BANDS, 3, 4))
+    matrix = h @ np.conj(np.transpose(h, (0, 2, 1))) * rng.uniform(0.01, 10.0, size=(N_BANDS, 1, 1))
+    widths = np.diff(BANDS_HZ)
+    expected = [min(schur_reference(matrix[b], c) / widths[b] for b in range(N_BANDS)) for c in range(3)]
+    np.testing.assert_allclose(noise_floors(matrix, BANDS_HZ), expected, rtol=1e-9)
+
+
+def test_bands_without_power_are_skipped_and_none_left_is_no_floor() -> None:
+    matrix = np.zeros((N_BANDS, 3, 3), dtype=np.complex128)
+    assert noise_floors(matrix, BANDS_HZ) is None
+    matrix[2] = np.diag([1.0, 2.0, 4.0])
+    np.testing.assert_allclose(noise_floors(matrix, BANDS_HZ), np.array([1.0, 2.0, 4.0]) / (BANDS_HZ[3] - BANDS_HZ[2]))
+
+
+def test_white_noise_lifts_a_sensors_floor_to_its_density_and_leaves_the_others() -> None:
+    hiss_mps2 = 0.4  # per sample at 500 Hz: a density of 0.4^2 / 250 Hz
+    density = hiss_mps2**2 / (FS_HZ / 2)
+    healthy = np.array([noise_floors(w.spectra.matrix(), BANDS_HZ) for w in frame_run(7)])
+    noisy = np.array([noise_floors(w.spectra.matrix(), BANDS_HZ) for w in frame_run(7, hiss_mps2=(0.0, hiss_mps2, 0.0))])
+    assert np.all(noisy[:, 1] > 0.8 * density) and np.all(noisy[:, 1] < 1.2 * density)
+    assert np.all(healthy[:, 1] < 0.01 * density)
+    np.testing.assert_allclose(noisy[:, [0, 2]], healthy[:, [0, 2]], rtol=0.5)
+
+
+def test_commissioning_learns_each_channels_smallest_floor_and_largest_ratio_to_the_others() -> None:
+    windows = frame_run(1)
+    fit = learn_noise_floor(windows)
+    floors = np.array([noise_floors(w.spectra.matrix(), BANDS_HZ) for w in windows])
+    others = np.array([[np.sqrt(f[(c + 1) % 3] * f[(c + 2) % 3]) for c in range(3)] for f in floors])
+    assert fit is not None and fit.windows == len(windows)
+    np.testing.assert_allclose(fit.psd, floors.min(axis=0))
+    np.testing.assert_allclose(fit.ratio, (floors / others).max(axis=0))
+
+
+def test_merging_the_loads_fits_is_learning_on_their_windows_together() -> None:
+    a, b = frame_run(1), frame_run(2, gain=3.0)
+    merged = merge_noise_floors([learn_noise_floor(a), learn_noise_floor(b)])
+    together = learn_noise_floor(a + b)
+    assert merged is not None and together is not None
+    assert merged.psd == together.psd and merged.ratio == together.ratio and merged.windows == together.windows
+    assert merge_noise_floors([None, None]) is None
+
+
+def test_a_noisy_sensor_is_named_on_its_channel_after_commissioning() -> None:
+    health = commissioned()
+    for w in frame_run(11, hiss_mps2=(0.0, 0.4, 0.0)):
+        assert floor_noisy_channels(w, health) == [1]
+        assert assess_window(w, health, geometry=GEOMETRY).problems == {"a2": (SensorProblem.NOISY,)}
+
+
+def test_a_stuck_sensor_does_not_make_the_others_look_noisy() -> None:
+    health = commissioned()
+    stuck = frame_run(13, hiss_mps2=(0.0, 0.0, 0.0))
+    for w in stuck:
+        frozen = dataclasses.replace(w.channels, repeat_fraction=(0.0, 0.9, 0.0))
+        matrix = w.spectra.matrix()
+        matrix[:, 1, :] *= 1e-4  # a2 holds still: next to nothing left of it in any band
+        matrix[:, :, 1] *= 1e-4
+        held = dataclasses.replace(w, channels=frozen, spectra=WindowSpectra.from_matrix(matrix, BANDS_HZ))
+        assert assess_window(held, health, geometry=GEOMETRY).problems == {"a2": (SensorProblem.STUCK,)}
+
+
+def test_the_healthy_frame_on_other_runs_is_never_noisy() -> None:
+    health = commissioned()
+    for seed in range(20, 30):
+        for w in frame_run(seed):
+            assert floor_noisy_channels(w, health) == []
+
+
+def test_a_rougher_track_lifting_every_floor_is_not_noise() -> None:
+    health = commissioned()
+    for w in frame_run(12, gain=30.0, hiss_mps2=(0.06, 0.06, 0.06)):
+        assert floor_noisy_channels(w, health) == []
+
+
+def test_without_commissioning_the_check_is_not_in_force() -> None:
+    for w in frame_run(11, hiss_mps2=(0.0, 0.4, 0.0)):
+        assert floor_noisy_channels(w, HealthSettings()) == []
+
+
+def test_commissioned_floors_go_through_the_config_as_calibrate_writes_them() -> None:
+    fit = learn_noise_floor(frame_run(1))
+    assert fit is not None
+    config = parse_config(tomlout.dumps({"health": fit.health_fields()}), "calibration.toml")
+    health = config.health_settings()
+    np.testing.assert_allclose(health.noise_floor_psd, fit.psd, rtol=1e-3)
+    np.testing.assert_allclose(health.noise_floor_ratio, fit.ratio, rtol=1e-3)
+
+
+@pytest.mark.parametrize("fields", [{"noise_floor_psd": [1e-6, 1e-6]}, {"noise_floor_psd": [1e-6] * 3}, {"noise_floor_ratio": [1.0] * 3}])
+def test_floors_need_one_value_per_channel_each(fields: dict) -> None:
+    with pytest.raises(ConfigError, match="noise_floor_psd and noise_floor_ratio"):
+        parse_config(tomlout.dumps({"health": fields}), "bogiemon.toml")
+
+
+def test_a_window_built_without_the_noise_floor_bands_still_has_a_floor() -> None:
+    # Records of the judged bands only (built by hand, or older): the floor of what they hold.
+    matrix = np.tile(np.diag([1e-3, 2e-3, 3e-3]).astype(np.complex128), (7, 1, 1))
+    spectra = WindowSpectra.from_matrix(matrix, BANDS_HZ[:8])
+    assert noise_floors(spectra.matrix(), spectra.bands_hz) is not None
