@@ -67,9 +67,11 @@ class LiveDisplay:
             fired = ", ".join(f"{k} {v:+.3f}" for k, v in event.indicators.items())
             line = f"{event.kind.value} ({event.severity.value}) at {end_s:.0f} s: {fired}"
             diagnosis = event.details.get("diagnosis")
-            if diagnosis:
-                line += (f"; likely {diagnosis['corner']} corner ({100 * diagnosis['corner_confidence']:.0f} %), "
-                         f"{diagnosis['kind']} ({100 * diagnosis['kind_confidence']:.0f} %)")  # fmt: skip
+            if diagnosis and diagnosis["corner"] != "unknown":
+                line += f"; corner {diagnosis['corner']} ({diagnosis['best_match']})"
+            elif diagnosis:
+                # The signs do not single a corner out: say so, with what they lean to.
+                line += f"; corner unknown ({diagnosis['best_match'] or 'no evidence'})"
             self.events.append(line)
             self.out.write(f"  >>> {line}\n")
             if event.kind is EventKind.CONFIRMED and self.confirmed_at_s is None:

@@ -29,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         "default method with them on both models' evaluation fleets, against issue 16's targets (README.md and "
         "results.json; the config folder is not touched)",
     )
-    p.add_argument("--full", action="store_true", help="with --transfer: the plan with 100 h of healthy running per model (several hours)")
+    p.add_argument("--full", action="store_true", help="with --transfer: the plan with 100 h of healthy running per model (about 90 minutes from nothing)")
     p.add_argument("--config", help="config file for the processing, health and decision settings (default: shipped)")
     p.add_argument(
         "--fit-models",

@@ -219,21 +219,24 @@ def report_sections() -> dict[str, list[str]]:
             "modes: the real part of the pitch-roll and bounce-roll coherency in the octave bands from 2 to 64 Hz (ten "
             "numbers, detection/features.py), from the band cross-spectra the detection core keeps per window "
             "(detection/spectra.py). Normalised by the modes' own power, they do not grow with speed or track roughness "
-            "as the paper's raw indicators do. Commissioning (`bogiemon calibrate`) learns the wagon's own healthy "
-            "center; the spread around it is shipped (config/fused_model.toml), fitted on a training fleet of other "
-            "wagons. Two paths judge the whitened shift z = L (x - center):",
+            "as the paper's raw indicators do. Commissioning (`bogiemon calibrate`, per load) learns the wagon's own "
+            "healthy center and spread, the spread shrunk towards the shipped one (config/fused_model.toml, fitted on "
+            "a training fleet of other wagons), and its load states. Two paths judge the whitened shift "
+            "z = L (x - center):",
             "",
             "- *windows*: the window score |z|^2 at its alarm level in 3 of the last 5 judged windows confirms: a gross "
-            "fault within minutes;",
+            "fault within minutes (2 of 5 at the warning level: SUSPECTED);",
             "- *trend*: the exponentially weighted mean of z over the judged windows (time constant 30 min of running, "
             "carried across stops and restarts), |mean|^2 at its alarm level confirms: a standing fault that any one "
             "window cannot tell from the healthy wagon's own scatter, once the wagon has met enough tracks and speeds.",
             "",
-            "Both levels are fixed before the evaluation by the rule in lab/modelfit.py, on the training fleet only: "
-            "the larger of 1.1 x the largest healthy value seen and an exponential tail's once-in-1000-hours level. The "
-            "load state comes from the spectral shape of each window (a logistic regression on four band-power shares, "
-            "config/load_model.toml); the diagnosis compares the confirming shift with the training fleet's fault "
-            "signatures per corner and kind (config/fault_signatures.toml).",
+            "Both levels are fixed before the evaluation by the rule in lab/modelfit.py, on the training fleet only "
+            "(each training wagon commissioned as the daemon commissions one): the larger of 1.1 x the largest healthy "
+            "value seen and an exponential tail's once-in-1000-hours level; a wagon's commissioning raises them, never "
+            "lowers them. Each window goes to the load state the wagon was commissioned in (without a commissioning, "
+            "the shipped logistic regression on four band-power shares, config/load_model.toml, a prior); the "
+            "diagnosis reads the corner from the signs of the confirming shift's 4-8 Hz couplings, or says unknown "
+            "(daemon/diagnosis.py).",
         ],
         "models": [
             "## The shipped models",

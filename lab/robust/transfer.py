@@ -423,6 +423,7 @@ def _readme(
     by_eval = _by_evaluation(judgements)
     sim_h = sum(d.simulated_s for d in data.values()) / 3600.0
     sim_min = sum(d.elapsed_s for d in data.values()) / 60.0
+    reused = sum(d.reused_runs for d in data.values())
     header = ["target", "goal"]
     for evaluated, (same, cross) in by_eval.items():
         header += [same.label, ""] + ([cross.label, "", f"gap on {evaluated.upper()}"] if cross is not None else [])
@@ -443,8 +444,9 @@ def _readme(
     lines = [
         "# Priors across wagon models: the transfer evaluation",
         "",
-        f"Regenerate with `make transfer` (`{command}`). The {sim_h:.0f} h of simulated running (both models) took "
-        f"{sim_min:.0f} min to simulate and analyse on this project's 2-core machine"
+        f"Regenerate with `make transfer` (`{command}`). The plan holds {sim_h:.0f} h of simulated running (both models)"
+        + (f"; {reused} of its runs were reused from an earlier simulation, and the others" if reused else ", which")
+        + f" took {sim_min:.0f} min to simulate and analyse on this project's 2-core machine"
         + (f"; fitting, judging and writing brought it to {elapsed_s / 60:.0f} min." if elapsed_s >= sim_min * 60 else
            f" (earlier, kept in a data file); this report took {elapsed_s / 60:.0f} min to fit, judge and write.")
         + " Numbers for programs: [results.json](results.json).",

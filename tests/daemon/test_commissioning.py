@@ -58,6 +58,10 @@ def test_each_load_is_commissioned_from_its_own_recordings_with_its_own_spread(c
         assert c.fused.level_factor >= 1.0
     assert set(config.decision.load_states) == {"full", "tare"}
     assert len(config.decision.fused["full"].covariance) == 10
+    # The sensors' noise floors of both loads together, in force through the fragment.
+    assert result.noise_floor is not None and result.noise_floor.windows == sum(c.n_judged for c in result.loads)
+    np.testing.assert_allclose(config.health_settings().noise_floor_psd, result.noise_floor.psd, rtol=1e-3)
+    np.testing.assert_allclose(config.health_settings().noise_floor_ratio, result.noise_floor.ratio, rtol=1e-3)
 
 
 def test_windows_of_other_runs_go_to_their_own_load_state(commissioned) -> None:  # type: ignore[no-untyped-def]

@@ -326,7 +326,9 @@ def test_a_reload_that_changes_the_recorder_section_records_into_the_new_folder(
 # --- THE KEY TEST: the recording of a fault replays into the same alarm ------------------------------
 
 CALIBRATION = Path(str(resources.files("bogiemon.config").joinpath("demo_calibration.toml")))
-SPRING_BREAKS_S, RUN_S = 160.0, 240.0
+# A snapshot reaches lead_in_s (60 s) + window_s (120 s) + (confirm_n - 1) hops (40 s) = 220 s back
+# from the confirming window's end: a spring breaking later than that leaves a healthy start to cut.
+SPRING_BREAKS_S, RUN_S = 240.0, 330.0
 
 
 @pytest.mark.slow  # the simulator's kernel compiles on a machine's first run (~15 s); then about 3 s
