@@ -11,7 +11,6 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
-import math
 import os
 import stat
 import tomllib
@@ -188,7 +187,7 @@ class BogiemonConfig(Section):
         return out
 
     def fused_settings(self) -> FusedSettings:
-        return FusedSettings(self.fused_baselines(), shipped_models(self.decision.models_dir).signatures, self.bogie_geometry(), self.processing.hop_s)
+        return FusedSettings(self.fused_baselines(), self.bogie_geometry(), self.processing.hop_s)
 
     def check_models(self) -> None:
         """The fused method needs the windows its shipped model was fitted on; ConfigError if not."""

@@ -206,7 +206,7 @@ class DecisionConfig(Section):
     # With both states: which side of the wagon's own discriminant a window lies (written by
     # `bogiemon calibrate`; absent: the nearest state).
     load_discriminant: LoadDiscriminantConfig | None = None
-    # The folder of the priors (load_model.toml, fused_model.toml, fault_signatures.toml); empty:
+    # The folder of the priors (load_model.toml, fused_model.toml); empty:
     # the ones shipped in bogiemon's config folder, fitted on its simulator.
     models_dir: str = ""
 

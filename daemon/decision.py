@@ -58,7 +58,7 @@ import numpy as np
 
 from bogiemon.daemon.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.daemon.models import Baseline, SignatureSet, coupling_features
+from bogiemon.daemon.models import Baseline, coupling_features
 from bogiemon.daemon.rules import Level, Threshold, confirms, suspicion_k, trend_weight
 from bogiemon.detection import BogieGeometry, WindowIndicators
 
@@ -77,11 +77,9 @@ class Mode(enum.Enum):
 @dataclass(frozen=True)
 class FusedSettings:
     """What the fused score and the diagnosis need: per load the baseline in force, and the
-    sensors' geometry for the coupling vector. `signatures` is the old diagnosis's shipped fault
-    signatures: no longer read (daemon/diagnosis.py works from the geometry), kept for callers."""
+    sensors' geometry for the coupling vector (and the diagnosis: daemon/diagnosis.py)."""
 
     baselines: Mapping[str, Baseline]
-    signatures: Mapping[str, SignatureSet]
     geometry: BogieGeometry
     hop_s: float  # between windows: the trend's weight per judged window follows from it
 

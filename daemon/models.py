@@ -2,10 +2,10 @@
 
     config/load_model.toml       the load state from the spectral shape (a logistic regression)
     config/fused_model.toml      the fused score: the healthy couplings' spread, per load
-    config/fault_signatures.toml the coupling patterns of each corner's faults, per load: the old
-                                 diagnosis's prior, no longer read by it (daemon/diagnosis.py
-                                 names the corner from the geometry); still parsed and shipped
-                                 while config.py, lab/modelfit.py and tests refer to it
+
+No fault pattern is shipped: the diagnosis names the corner from the sensors' geometry
+(daemon/diagnosis.py), because the signatures once fitted on model A named the wrong corner of
+another wagon model's faults with confidence.
 
 They are fitted on a simulated training fleet by `bogiemon evaluate --fit-models` (lab/modelfit.py;
 the wagons, runs and numbers are in each file's header and in docs/robust/README.md) and read
@@ -32,8 +32,6 @@ from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, coupling_vec
 
 LOAD_MODEL_FILE = "load_model.toml"
 FUSED_MODEL_FILE = "fused_model.toml"
-SIGNATURES_FILE = "fault_signatures.toml"
-KINDS = ("spring-softer", "spring-stiffer", "friction")
 UNKNOWN = "unknown"
 
 
@@ -249,31 +247,6 @@ def coupling_features(window: WindowIndicators, geometry: BogieGeometry) -> NDAr
 
 
 # --------------------------------------------------------------------------------------------
-# Fault signatures: the old diagnosis's prior, fitted on the simulator's training fleet. It named
-# the right corner for 42 of 90 confirmed faults of an independently built wagon model, often
-# confidently wrong; the diagnosis now reads the corner from the geometry alone and no longer
-# uses these (kept while the config and the lab's model fitting still build them).
-
-
-@dataclass(frozen=True)
-class Signature:
-    """The mean whitened coupling shift of one fault class at one corner, as a unit vector."""
-
-    label: str  # e.g. "leading-left/spring-softer/rear_outer"
-    corner: str
-    kind: str
-    direction: NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class SignatureSet:
-    load: str
-    signatures: tuple[Signature, ...]
-    sharpness: float  # kappa of the softmax over cosine similarities
-    min_confidence: float  # below this the corner (or kind) is "unknown"
-
-
-# --------------------------------------------------------------------------------------------
 # Reading the files
 
 
@@ -352,27 +325,10 @@ def parse_fused_model(data: Mapping[str, Any], load: str, where: str = FUSED_MOD
         raise ModelError(f"{w}: missing or bad field {exc}") from None
 
 
-def parse_signatures(data: Mapping[str, Any], load: str, where: str = SIGNATURES_FILE) -> SignatureSet:
-    section = data.get(load)
-    if not isinstance(section, Mapping):
-        raise ModelError(f"{where}: no [{load}] table")
-    w = f"{where}: {load}"
-    out = []
-    for label, entry in section.get("signatures", {}).items():
-        direction = np.array(_floats(entry, "direction", f"{w}.signatures.{label}"))
-        if direction.shape != (len(COUPLING_NAMES),) or entry.get("kind") not in KINDS:
-            raise ModelError(f"{w}.signatures.{label}: needs a direction of {len(COUPLING_NAMES)} numbers and a kind in {KINDS}")
-        out.append(Signature(str(label), str(entry["corner"]), str(entry["kind"]), direction / np.linalg.norm(direction)))
-    if not out:
-        raise ModelError(f"{w}: no signatures")
-    return SignatureSet(load, tuple(out), float(section["sharpness"]), float(section["min_confidence"]))
-
-
 @dataclass(frozen=True)
 class ShippedModels:
     load: LoadModel
     fused: Mapping[str, FusedModel]
-    signatures: Mapping[str, SignatureSet]
 
 
 @functools.cache
@@ -380,9 +336,5 @@ def shipped_models(directory: str = "") -> ShippedModels:
     """The priors in bogiemon's config folder, or in `directory` (decision.models_dir: priors
     refitted on another fleet); read once per process and folder."""
     load = parse_load_model(_read(LOAD_MODEL_FILE, directory))
-    fused_data, signature_data = _read(FUSED_MODEL_FILE, directory), _read(SIGNATURES_FILE, directory)
-    return ShippedModels(
-        load=load,
-        fused={ld: parse_fused_model(fused_data, ld) for ld in ("full", "tare")},
-        signatures={ld: parse_signatures(signature_data, ld) for ld in ("full", "tare")},
-    )
+    fused_data = _read(FUSED_MODEL_FILE, directory)
+    return ShippedModels(load=load, fused={ld: parse_fused_model(fused_data, ld) for ld in ("full", "tare")})

@@ -2,7 +2,7 @@
 
     runs = [TrainingRun(...), ...]                 # the evaluation's training runs (lab/robust)
     files = fit_models(runs, geometry, health, processing, confirm_k=3, confirm_n=5, description=..., calibration_runs=12)
-    write_models(files, "config")                  # load_model.toml, fused_model.toml, fault_signatures.toml
+    write_models(files, "config")                  # load_model.toml, fused_model.toml
 
 `bogiemon evaluate --fit-models DIR` runs this on the training fleet of docs/robust (wagons and
 runs disjoint from the evaluation's). Every rule is stated here, fixed before the evaluation:
@@ -32,18 +32,14 @@ its levels by the same rule on each run's largest trend value. The population ba
 without calibration) is the same with the center and covariance of the whole fleet, scored
 leave-one-wagon-out.
 
-SIGNATURES, per load: each training fault run's windows at or above the calibrated warning level,
-whitened against its wagon's healthy center, averaged as unit vectors; the mean unit vector per
-(corner, fault class) is the signature, a class being a Type A coil position made softer or
-stiffer, or the damper's friction lowered or raised. Fault runs with no window at warning define
-nothing (the tare inner coils). The softmax sharpness is the value on a grid that maximises the
-training runs' mean log-probability of their true corner; the minimum confidence is 0.5.
+No fault signatures: the diagnosis reads the corner from the geometry (daemon/diagnosis.py). The
+fault runs still train the load model, whose windows include faulty ones as a wagon's will.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -58,7 +54,6 @@ from bogiemon.daemon.commissioning import fit_spread
 from bogiemon.daemon.models import (
     FUSED_MODEL_FILE,
     LOAD_MODEL_FILE,
-    SIGNATURES_FILE,
     FusedModel,
     Levels,
     coupling_features,
@@ -75,8 +70,6 @@ TARGET_RUNS_PER_WARNING = 600.0  # about one SUSPECTED per 100 h: a tenth of iss
 # The trend's time constant: long enough to span several track sections and speeds (a healthy
 # wagon's couplings move with them), short enough to confirm a standing fault within an hour.
 TREND_TAU_S = 1800.0
-SHARPNESS_GRID = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0, 50.0)
-MIN_CONFIDENCE = 0.5
 
 
 @dataclass(frozen=True)
@@ -86,18 +79,7 @@ class TrainingRun:
     wagon: str
     load: str
     key: str  # "healthy" or a fault case key, e.g. "type_a.full.rear_outer"
-    severity: float
-    corner: str | None
     windows: Sequence[WindowIndicators]
-
-
-def signature_class(key: str, severity: float) -> tuple[str, str]:
-    """(kind, class name) of a fault case: e.g. ("spring-softer", "rear_outer-softer")."""
-    if key.startswith("type_b"):
-        return "friction", "friction-lower" if severity < 1.0 else "friction-higher"
-    position = key.split(".")[2]
-    direction = "softer" if severity < 1.0 else "stiffer"
-    return f"spring-{direction}", f"{position}-{direction}"
 
 
 # --------------------------------------------------------------------------------------------
@@ -318,63 +300,10 @@ def fit_fused(
     return out
 
 
-def fit_signatures(
-    runs: Sequence[TrainingRun], geometry: BogieGeometry, health: HealthSettings, fused: Mapping[str, FusedModel]
-) -> dict[str, dict[str, Any]]:
-    out: dict[str, dict[str, Any]] = {}
-    for load in ("full", "tare"):
-        model = fused[load]
-        whitening = whitening_of(model.covariance)
-        centers = {}
-        for wagon in {r.wagon for r in runs if r.load == load}:
-            healthy = [_vectors(_judged(r.windows, geometry, health), geometry) for r in runs if r.wagon == wagon and r.load == load and r.key == "healthy"]
-            centers[wagon] = np.concatenate(healthy).mean(axis=0)
-        examples: list[tuple[str, str, str, NDArray[np.float64]]] = []  # corner, kind, class, unit shift
-        for run in runs:
-            if run.load != load or run.key == "healthy" or run.corner is None:
-                continue
-            x = _vectors(_judged(run.windows, geometry, health), geometry)
-            z = (x - centers[run.wagon]) @ whitening.T
-            z = z[np.einsum("ij,ij->i", z, z) >= model.levels.warning]
-            if len(z) == 0:
-                continue
-            unit = (z / np.linalg.norm(z, axis=1, keepdims=True)).mean(axis=0)
-            kind, name = signature_class(run.key, run.severity)
-            examples.append((run.corner, kind, name, unit / np.linalg.norm(unit)))
-        groups: dict[tuple[str, str, str], list[NDArray[np.float64]]] = {}
-        for corner, kind, name, unit in examples:
-            groups.setdefault((corner, kind, name), []).append(unit)
-        signatures = {}
-        for (corner, kind, name), units in sorted(groups.items()):
-            mean = np.mean(units, axis=0)
-            signatures[f"{corner}/{kind}/{name}"] = {"corner": corner, "kind": kind, "direction": [float(v) for v in mean / np.linalg.norm(mean)], "runs": len(units)}
-        labels = list(signatures)
-        directions = np.array([signatures[k]["direction"] for k in labels])
-        corners = [signatures[k]["corner"] for k in labels]
-        best_kappa, best_ll = SHARPNESS_GRID[0], -math.inf
-        for kappa in SHARPNESS_GRID:
-            ll = 0.0
-            for corner, _kind, _name, unit in examples:
-                logits = kappa * (directions @ unit)
-                p = np.exp(logits - logits.max())
-                p /= p.sum()
-                ll += math.log(max(float(sum(pj for pj, c in zip(p, corners, strict=True) if c == corner)), 1e-300))
-            if ll > best_ll:
-                best_kappa, best_ll = kappa, ll
-        out[load] = {
-            "sharpness": best_kappa,
-            "min_confidence": MIN_CONFIDENCE,
-            "training_runs": len(examples),
-            "signatures": signatures,
-        }
-    return out
-
-
 @dataclass(frozen=True)
 class FittedModels:
     load: dict[str, Any]
     fused: dict[str, dict[str, Any]]
-    signatures: dict[str, dict[str, Any]]
     description: str  # what they were fitted on, for the files' headers
 
 
@@ -388,13 +317,9 @@ def fit_models(
     description: str,
     calibration_runs: int,
 ) -> FittedModels:
-    from bogiemon.daemon.models import parse_fused_model  # the fitted fused model, as the daemon reads it
-
     load = fit_load_model(runs, geometry, health)
     fused = fit_fused(runs, geometry, health, confirm_k, confirm_n, processing, calibration_runs)
-    parsed = {ld: parse_fused_model(fused, ld) for ld in fused}
-    signatures = fit_signatures(runs, geometry, health, parsed)
-    return FittedModels(load, fused, signatures, description)
+    return FittedModels(load, fused, description)
 
 
 def write_models(models: FittedModels, directory: str | Path) -> list[Path]:
@@ -408,7 +333,6 @@ def write_models(models: FittedModels, directory: str | Path) -> list[Path]:
     files = {
         LOAD_MODEL_FILE: ("# The load state from the spectral shape: P(full), a logistic regression (daemon/models.py).", models.load),
         FUSED_MODEL_FILE: ("# The fused score's healthy spread and levels, per load (daemon/models.py, daemon/decision.py).", models.fused),
-        SIGNATURES_FILE: ("# The coupling shift of each fault class at each corner, per load (daemon/diagnosis.py).", models.signatures),
     }
     out = []
     for name, (title, body) in files.items():

@@ -34,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument(
         "--fit-models",
         action="store_true",
-        help="first fit the shipped models (load state, fused spread, fault signatures) on the plan's training "
+        help="first fit the shipped models (load state, fused spread and levels) on the plan's training "
         "fleet and write them into bogiemon's config folder",
     )
     p.add_argument(

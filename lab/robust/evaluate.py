@@ -35,7 +35,7 @@ PAPER_INDICATORS = {"full": ["i2", "i4"], "tare": ["i3"]}
 
 def training_runs(data: EvaluationData) -> list[TrainingRun]:
     return [
-        TrainingRun(f"training {r.run.wagon}", r.run.load, r.run.key, r.run.severity, r.run.corner.value if r.run.corner else None, r.windows)
+        TrainingRun(f"training {r.run.wagon}", r.run.load, r.run.key, r.windows)
         for r in data.runs
         if r.run.training
     ]
@@ -241,8 +241,8 @@ def report_sections() -> dict[str, list[str]]:
         "models": [
             "## The shipped models",
             "",
-            "`bogiemon evaluate --fit-models` fits config/load_model.toml, config/fused_model.toml and "
-            "config/fault_signatures.toml on the plan's training fleet (wagons disjoint from the evaluation's) before it "
+            "`bogiemon evaluate --fit-models` fits config/load_model.toml and config/fused_model.toml "
+            "on the plan's training fleet (wagons disjoint from the evaluation's) before it "
             "evaluates; each file's header says what it was fitted on. They are the simulator's: a real fleet's first "
             "wagons should refit the spread and the levels from their own healthy running (the same code, "
             "lab/modelfit.py, on recorded windows).",

@@ -29,7 +29,7 @@ Every fault case of the paper's Tables 1 to 3 at every severity, on every corner
 bogie (the one without a sensor too), and the inner coils in tare (which do not touch the frame:
 invisible by construction, run to show it). Fault runs are spread over the fleet's wagons.
 A TRAINING fleet of other wagons (other seeds) gives the data the shipped models are fitted on
-(load classifier, fault signatures, the population baseline of an uncalibrated wagon); nothing
+(the load classifier, the fused spread and levels, the population baseline of an uncalibrated wagon); nothing
 of the evaluation fleet is used to fit them.
 """
 

@@ -3,8 +3,8 @@
     plans = transfer_plans("default")                   # the same plan on wagon models A and B
     doc = run_transfer(config, "docs/robust/transfer", command="bogiemon evaluate --transfer ...")
 
-bogiemon ships priors fitted on its own simulator (config/load_model.toml, fused_model.toml,
-fault_signatures.toml). Here they are fitted, by the rule `make evaluate` uses (lab/modelfit.py),
+bogiemon ships priors fitted on its own simulator (config/load_model.toml and fused_model.toml).
+Here they are fitted, by the rule `make evaluate` uses (lab/modelfit.py),
 on the training fleet of each wagon model in turn (model A: simulator/vehicle.py; model B:
 simulator/model_b, formulated independently), written into a temporary folder and given to the
 daemon as decision.models_dir. The daemon's default method (fused, calibrated: each wagon
@@ -61,7 +61,7 @@ def transfer_plan(model: str, size: str = "default") -> EvaluationPlan:
     Only what the targets need: single runs of the broken springs (a lead-in, then 10 min with the
     fault), trend sequences of the smaller faults (an hour of running with the fault over several
     runs), stops, standing and the noisy sensor; the training fleet runs every fault cell (the
-    signatures need every corner and class).
+    load model learns from faulty windows too, and the diagnosis's bands were chosen on them).
     """
     common: dict[str, Any] = dict(
         model=model, lead_in_s=150.0, fault_s=FAULT_HORIZON_S, fault_cases=BROKEN_FULL + BROKEN_TARE_OUTER,
@@ -460,7 +460,7 @@ def _readme(
         "+/-10 %, coils +/-5 % per wagon and per corner, friction +/-10 % per wagon and per corner, stick and side-bearer "
         "stiffness +/-10 % and +/-20 %, sensors' gain +/-3 %, bias +/-0.3 m/s^2, noise 0.005-0.03 m/s^2), and run k "
         "the same track class, speeds and direction.",
-        "- **Four judgements.** The priors (load model, fused spread and levels, fault signatures) fitted by "
+        "- **Four judgements.** The priors (load model, fused spread and levels) fitted by "
         "lab/modelfit.py on the training fleet of one model (wagons disjoint from the evaluation's) into a temporary "
         "folder, given to the daemon as `decision.models_dir`; the daemon's default method (fused, calibrated) judges "
         "each evaluation fleet, every wagon commissioned per load on its own calibration runs (`bogiemon calibrate`'s "

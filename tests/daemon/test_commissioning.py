@@ -170,7 +170,7 @@ def test_priors_can_come_from_another_folder_and_a_missing_one_is_a_clear_error(
 
     from bogiemon.daemon.config import ConfigError, parse_config
 
-    for name in ("load_model.toml", "fused_model.toml", "fault_signatures.toml"):
+    for name in ("load_model.toml", "fused_model.toml"):
         (tmp_path / name).write_text(resources.files("bogiemon.config").joinpath(name).read_text())
     text = (tmp_path / "fused_model.toml").read_text().replace("calibration_median_score = ", "calibration_median_score = 1", 1)
     (tmp_path / "fused_model.toml").write_text(text)

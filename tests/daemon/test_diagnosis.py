@@ -197,7 +197,7 @@ def window(spectra: WindowSpectra, t_s: float) -> WindowIndicators:
 def test_the_decider_names_the_physical_corner_whatever_corners_the_sensors_are_on(layout: tuple[Corner, Corner, Corner]) -> None:
     geometry = BogieGeometry(corners=layout)
     b = Baseline("calibrated", np.zeros(N), whitening_of(covariance()), LEVELS, trend_tau_s=1800.0)
-    fused = FusedSettings({"full": b}, {}, geometry, hop_s=10.0)
+    fused = FusedSettings({"full": b}, geometry, hop_s=10.0)
     decider = Decider(DecisionSettings({}, confirm_k=3, confirm_n=5, method="fused", fused=fused), "cfg")
     physical = shift_of(Corner.TRAILING_RIGHT, "full", 8.0)  # a softer trailing-right corner, in every band read
     spectra = sensor_spectra(physical, geometry)

@@ -10,7 +10,7 @@ import pytest
 from bogiemon.daemon.decision import FUSED_SCORE, FUSED_TREND, Decider, DecisionSettings, DecisionState, FusedSettings, Level, Mode
 from bogiemon.daemon.events import EventKind
 from bogiemon.lab.modelfit import trend_runs
-from bogiemon.daemon.models import Baseline, Levels, Signature, SignatureSet
+from bogiemon.daemon.models import Baseline, Levels
 from bogiemon.detection import BogieGeometry, WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 from bogiemon.detection.features import COUPLING_FEATURES, COUPLING_NAMES, coupling_vector
@@ -44,20 +44,8 @@ LEVELS = Levels(warning=20.0, alarm=40.0, trend_warning=4.0, trend_alarm=8.0)
 BASELINE = Baseline("calibrated", np.zeros(N), np.eye(N) * 10.0, LEVELS, trend_tau_s=600.0)
 
 
-# Two signatures: every coupling up at leading-left, every coupling down at trailing-right.
-SIGNATURES = SignatureSet(
-    "full",
-    (
-        Signature("leading-left/spring-softer/x", "leading-left", "spring-softer", np.ones(N) / math.sqrt(N)),
-        Signature("trailing-right/friction/x", "trailing-right", "friction", -np.ones(N) / math.sqrt(N)),
-    ),
-    sharpness=20.0,
-    min_confidence=0.5,
-)
-
-
 def settings(baseline: Baseline = BASELINE) -> DecisionSettings:
-    fused = FusedSettings({"full": baseline}, {"full": SIGNATURES}, GEOMETRY, HOP_S)
+    fused = FusedSettings({"full": baseline}, GEOMETRY, HOP_S)
     return DecisionSettings({}, confirm_k=3, confirm_n=5, clear_after_windows=2, method="fused", fused=fused)
 
 

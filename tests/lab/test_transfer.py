@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from bogiemon.daemon.cli.main import main
@@ -156,21 +156,29 @@ def _windows(accel: np.ndarray) -> list:  # type: ignore[type-arg]
 
 
 @pytest.mark.slow
-@settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(
     masses=st.floats(0.7, 1.3), frames=st.floats(0.7, 1.3), coils=st.floats(0.7, 1.3), friction=st.floats(0.7, 1.3), seed=st.integers(0, 2**16)
 )
-def test_a_wagon_30_percent_off_the_training_fleet_confirms_nothing_and_reports_no_sensor_fault(
+# The extremes of a mode on the coils, sqrt(coils / masses): 27 % below and 36 % above the fleet's.
+@example(masses=1.3, frames=1.3, coils=0.7, friction=0.7, seed=1).via("the lowest frequencies")
+@example(masses=0.7, frames=0.7, coils=1.3, friction=1.3, seed=2).via("the highest frequencies")
+def test_a_wagon_30_percent_off_the_training_fleet_raises_no_suspension_alarm_and_no_sensor_fault(
     masses: float, frames: float, coils: float, friction: float, seed: int
 ) -> None:
     """Carbody and frame masses (with their inertias), coil stiffness and Fs scaled by up to
-    +/-30 % (the modal frequencies move by up to about +/-15 %); commissioned per load on its own
-    runs with the shipped priors, then judged on other healthy runs of it."""
+    +/-30 % (a mode on the coils by -27 .. +36 % at the extremes, given as examples); commissioned
+    per load on its own runs with the shipped priors, then judged on other healthy runs of it."""
     wagon = make_wagon("far", seed)
     spread = {f"carbody_{w}_{ld}": masses for ld in ("full", "tare") for w in ("mass", "pitch_inertia", "roll_inertia")}
     spread |= {"frame_mass": frames, "frame_pitch_inertia": frames, "frame_roll_inertia": frames, "coils": coils, "friction": friction}
     apply_spread(wagon.parameters, "a", spread)
-    specs = [RunSpec(role, 0, load, HEALTHY, 1.0, None, n, 300.0) for load in ("full", "tare") for role, k in (("calibration", 4), ("healthy", 2)) for n in range(k)]
+    # Commissioned as the README asks a keeper: its four runs per load on the four track qualities,
+    # both directions, both ends of the speed range (draw_conditions' commissioning runs).
+    specs = [
+        RunSpec(role, 0, load, HEALTHY, 1.0, None, n, 300.0, commissioning=role == "calibration")
+        for load in ("full", "tare") for role, k in (("calibration", 4), ("healthy", 2)) for n in range(k)
+    ]  # fmt: skip
     results = simulate_batch([scenario_for(s, wagon, SETTINGS.fs_hz, GEOMETRY) for s in specs])
     windows = {s: _windows(r.accel_mps2) for s, r in zip(specs, results, strict=True)}
     method = DaemonMethod("fused, calibrated", "the daemon's default", with_overrides(CONFIG, {"method": "fused"}), calibrated=True)
@@ -179,13 +187,16 @@ def test_a_wagon_30_percent_off_the_training_fleet_confirms_nothing_and_reports_
         healthy = [w for s, w in windows.items() if s.role == "healthy" and s.load == load]
         judged = commissioned.judge(healthy, load)
         kinds = [e.kind for run in judged for e in run.events]
-        assert "CONFIRMED" not in kinds and "SENSOR_FAULT" not in kinds, (load, kinds)
-        # Judged, and in its own load state: not quiet because nothing was judged. Not every
-        # window: 20 min of commissioning per load covers few tracks and speeds, and a window
-        # unlike all of them is not judged (the familiarity limit; 23 of 38 judged at friction
-        # 0.75, where the shipped load model, a prior, judged more).
+        # No suspension alarm, not even a SUSPECTED (none in the 14 examples' 56 runs), and no
+        # sensor fault.
+        assert not {"SUSPECTED", "CONFIRMED", "SENSOR_FAULT"} & set(kinds), (load, kinds)
+        # Judged, and in its own load state: not quiet because nothing was judged. A commissioning
+        # that covers the tracks, directions and speeds leaves the healthy runs familiar: every
+        # window was judged in each of the 14 examples (measured 2026-12-02; with 4 random runs
+        # instead, 23 of 38 were judged at friction 0.75). A tenth is the margin for a window near
+        # the edge.
         loads = [ld for run in judged for ld in run.loads if ld is not None]
-        assert len(loads) >= sum(len(w) for w in healthy) / 3 and set(loads) == {load}, (load, len(loads))
+        assert len(loads) >= 0.9 * sum(len(w) for w in healthy) and set(loads) == {load}, (load, len(loads))
 
 
 # --------------------------------------------------------------------------------------------
