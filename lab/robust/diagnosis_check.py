@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter, defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,7 +38,7 @@ import numpy as np
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.diagnosis import SIGN_BANDS, softer_signs
 from bogiemon.daemon.models import UNKNOWN, coupling_features
-from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings
+from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, WindowIndicators
 from bogiemon.detection.features import COUPLING_FEATURES, COUPLING_NAMES, PITCH
 from bogiemon.detection.spectra import JUDGED_BANDS_HZ as BANDS_HZ
 from bogiemon.lab.robust.fleet import EvaluationData, EvaluationPlan, RunSpec, fault_cells, simulate_plan
@@ -151,16 +151,25 @@ def report(title: str, tally: Tally) -> list[str]:
 # The sign relation on the simulator
 
 
-def paired_shifts(model: str, load: str, seeds: int = 3, duration_s: float = 250.0) -> dict[tuple[str, float], dict[Corner, np.ndarray]]:
-    """Per case and corner: the mean coupling shift against a healthy run on the same track and speed
-    (mean over the seeds), the nominal wagon of the model, forward running."""
+def paired_shifts(
+    model: str,
+    load: str,
+    seeds: int = 3,
+    duration_s: float = 250.0,
+    features: Callable[[WindowIndicators, BogieGeometry], np.ndarray | None] = coupling_features,
+    cells: Sequence[tuple[str, float]] | None = None,
+) -> dict[tuple[str, float], dict[Corner, np.ndarray]]:
+    """Per case and corner: the mean shift of `features` (by default the fused score's coupling
+    vector) against a healthy run on the same track and speed (mean over the seeds), the nominal
+    wagon of the model, forward running; every case of the paper's Table 4 at `load`, or `cells`."""
     from bogiemon.simulator.run import simulate_batch  # the kernel: only when running
     from bogiemon.simulator.scenario import Scenario, SpeedProfile
     from bogiemon.simulator.suspension import Fault
 
     settings, geometry = ProcessingSettings(), BogieGeometry()
     tracks = ("erri-low", "fra-5", "erri-high", "fra-4", "fra-6")
-    cells = [(key, s) for key, sev in table4_cases().items() if key.split(".")[1] == load for s in sev]
+    if cells is None:
+        cells = [(key, s) for key, sev in table4_cases().items() if key.split(".")[1] == load for s in sev]
     labels: list[tuple[int, tuple[str, float] | None, Corner | None]] = []
     scenarios = []
     for seed in range(seeds):
@@ -177,7 +186,7 @@ def paired_shifts(model: str, load: str, seeds: int = 3, duration_s: float = 250
     means: dict[tuple[int, tuple[str, float] | None, Corner | None], np.ndarray] = {}
     for first in range(0, len(scenarios), 16):
         for label, result in zip(labels[first : first + 16], simulate_batch(scenarios[first : first + 16]), strict=True):
-            xs = [coupling_features(w, geometry) for w in IndicatorStream(settings, geometry).process(result.accel_mps2)]
+            xs = [features(w, geometry) for w in IndicatorStream(settings, geometry).process(result.accel_mps2)]
             means[label] = np.nanmean([x for x in xs if x is not None], axis=0)
     out: dict[tuple[str, float], dict[Corner, np.ndarray]] = {}
     for cell in cells:
