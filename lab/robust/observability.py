@@ -50,6 +50,7 @@ from bogiemon.daemon.models import coupling_features
 from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
 from bogiemon.detection.features import BOUNCE, PITCH, ROLL, band_label, modal_coherency
 from bogiemon.detection.spectra import N_JUDGED_BANDS, modal_spectra
+from bogiemon.lab.robust.fleet import EvaluationData
 
 QUANTILE = 0.999
 BANDS = tuple(range(2, N_JUDGED_BANDS))  # 2-64 Hz, the fused score's bands
@@ -57,6 +58,8 @@ PAIRS: dict[str, tuple[int, int]] = {"bounce-pitch": (BOUNCE, PITCH), "bounce-ro
 BROKEN_COILS = ("front_outer", "front_inner", "rear_outer", "rear_inner")
 
 Features = Callable[[WindowIndicators, BogieGeometry], NDArray[np.float64] | None]
+# Per broken-coil case ("full front_outer"), per feature set: each training fault run's visibility.
+Visibility = dict[str, dict[str, list[float]]]
 
 
 def _finite(x: NDArray[np.float64]) -> NDArray[np.float64] | None:
@@ -153,12 +156,9 @@ def case_of(key: str, severity: float) -> str | None:
     return f"{parts[1]} {parts[2]}"
 
 
-def visibility(data: object, feature_sets: Mapping[str, Features] = FEATURE_SETS) -> dict[str, dict[str, list[float]]]:
+def visibility(data: EvaluationData, feature_sets: Mapping[str, Features] = FEATURE_SETS) -> Visibility:
     """Per broken-coil case, per feature set: the visibility of each training fault run (module
     docstring), against its own training wagon's reference in the run's load."""
-    from bogiemon.lab.robust.fleet import EvaluationData
-
-    assert isinstance(data, EvaluationData)
     overlap = data.settings.window_s / data.settings.hop_s
     by_wagon: dict[tuple[int, str], dict[str, list]] = defaultdict(lambda: defaultdict(list))  # type: ignore[type-arg]
     for r in data.runs:
@@ -166,7 +166,7 @@ def visibility(data: object, feature_sets: Mapping[str, Features] = FEATURE_SETS
             by_wagon[(r.run.wagon, r.run.load)]["commissioning" if r.run.commissioning else "healthy"].append(r)
         elif r.run.role == "train-fault" and case_of(r.run.key, r.run.severity):
             by_wagon[(r.run.wagon, r.run.load)]["fault"].append(r)
-    out: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    out: Visibility = defaultdict(lambda: defaultdict(list))
     for runs in by_wagon.values():
         if not (runs["commissioning"] and runs["healthy"] and runs["fault"]):
             continue
@@ -180,7 +180,7 @@ def visibility(data: object, feature_sets: Mapping[str, Features] = FEATURE_SETS
     return out
 
 
-def visibility_table(model: str, shares: Mapping[str, Mapping[str, Sequence[float]]]) -> list[str]:
+def visibility_table(model: str, shares: Visibility) -> list[str]:
     names = list(FEATURE_SETS)
     lines = [f"MODEL {model.upper()}, training fleet: the share of a broken coil's windows above the healthy 99.9th percentile (median over runs)",
              f"  {'case':20} {'runs':>4} " + " ".join(f"{n:>8}" for n in names)]  # fmt: skip

@@ -26,12 +26,15 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.detection import Corner
 from bogiemon.lab.robust.evaluate import EvaluateError, daemon_methods, fit_and_write_models, read_cache, reuse, write_cache
 from bogiemon.lab.robust.fleet import HISS_RMS_MPS2, SENSOR_DAMAGE, EvaluationData, EvaluationPlan, simulate_plan
 from bogiemon.lab.robust.judge import DaemonMethod, RunResult, judge_runs, with_overrides
 from bogiemon.lab.robust.judge import _result as run_result
+from bogiemon.lab.robust.observability import FEATURE_SETS, Visibility, visibility
 from bogiemon.lab.robust.report import FULL_SPRINGS, TARE_OUTER, case_label, pooled, score_json
 from bogiemon.lab.robust.score import QUIET_ROLES, MethodScore, score_method
 
@@ -375,6 +378,7 @@ def write_transfer_report(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = target_rows(judgements)
+    visible = {m: visibility(d) for m, d in data.items()}
     doc = {
         "format": 1,
         "command": command,
@@ -387,6 +391,10 @@ def write_transfer_report(
         "trend_horizon_s": TREND_HORIZON_S,
         "plans": {m: _plan_json(d.plan) for m, d in data.items()},
         "targets": rows,
+        # Per model, broken-coil case and feature set: the median share of a training fault run's
+        # windows above its wagon's healthy 99.9th percentile (lab/robust/observability.py).
+        "visibility": {m: {case: {name: round(float(np.median(v)), 4) for name, v in per.items()} for case, per in sorted(shares.items())}
+                       for m, shares in visible.items()},
         "judgements": [
             {"priors": j.priors, "evaluated": j.evaluated, "same_model": j.same_model,
              **{k: v for k, v in score_json(j.score).items() if k != "targets"}, "extra": _extra_json(j.score)}
@@ -394,7 +402,7 @@ def write_transfer_report(
         ],  # fmt: skip
     }
     (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-    (out / "README.md").write_text("\n".join(_readme(data, judgements, rows, command, elapsed_s)) + "\n", encoding="utf-8")
+    (out / "README.md").write_text("\n".join(_readme(data, judgements, rows, command, elapsed_s, visible)) + "\n", encoding="utf-8")
     return doc
 
 
@@ -417,7 +425,7 @@ def _extra_json(score: MethodScore) -> dict[str, Any]:
 
 
 def _readme(
-    data: Mapping[str, EvaluationData], judgements: Sequence[Judgement], rows: Sequence[Mapping[str, Any]], command: str, elapsed_s: float
+    data: Mapping[str, EvaluationData], judgements: Sequence[Judgement], rows: Sequence[Mapping[str, Any]], command: str, elapsed_s: float, visible: Mapping[str, Visibility]
 ) -> list[str]:
     plan = next(iter(data.values())).plan
     by_eval = _by_evaluation(judgements)
@@ -515,7 +523,7 @@ def _readme(
         *_table(header, table),
         "",
     ]
-    lines += _details(data, judgements)
+    lines += _details(data, judgements, visible)
     return lines
 
 
@@ -523,7 +531,7 @@ def _on(corners: Sequence[Corner] | None) -> str:
     return "" if corners is None else f", on {', '.join(c.value for c in corners)}"
 
 
-def _details(data: Mapping[str, EvaluationData], judgements: Sequence[Judgement]) -> list[str]:
+def _details(data: Mapping[str, EvaluationData], judgements: Sequence[Judgement], visible: Mapping[str, Visibility]) -> list[str]:
     lines = ["## Healthy running, stops, standing and the noisy sensor", ""]
     rows = []
     for j in judgements:
@@ -567,6 +575,7 @@ def _details(data: Mapping[str, EvaluationData], judgements: Sequence[Judgement]
             every = j.score.load_all_windows.get(load, 0)
             rows.append([j.label, load, f"{_pct(judged / every) if every else '-'} ({judged} of {every})", f"{_pct(right / judged) if judged else '-'} ({right} of {judged})"])
     lines += _table(["judgement", "load", "windows judged", "right, of the judged"], rows)
+    lines += ["", *_visibility_section(visible)]
     lines += [
         "",
         "## How it was run",
@@ -580,6 +589,30 @@ def _details(data: Mapping[str, EvaluationData], judgements: Sequence[Judgement]
         "lab/robust/fleet.py (the runs: stops, standing, the noisy sensor), lab/robust/score.py (the counts).",
     ]  # fmt: skip
     return lines
+
+
+def _visibility_section(visible: Mapping[str, Visibility]) -> list[str]:
+    """What the three sensors show of each broken coil at all, on the training fleets."""
+    lines = [
+        "## What the sensors can observe",
+        "",
+        "On each model's TRAINING fleet (never the evaluation fleet): the median share of a broken coil's windows, "
+        "after the break, above its own wagon's healthy 99.9th percentile of the Mahalanobis score against its "
+        "commissioning runs, for five feature sets (lab/robust/observability.py: fused = the daemon's couplings; real = "
+        "the real coherency of all three pairs, bounce-pitch too; complex = their real and imaginary parts; shares = "
+        "each mode's log power share per band; all = complex and shares). About 0.001 for a fault nothing sees, 1 for "
+        "one every window shows; a confirmation needs 3 of 5 windows far above it. `python -m "
+        "bogiemon.lab.robust.observability --signs` gives the sign table behind the corner (the README: a front coil at "
+        "one corner gives the signs of a rear coil at the opposite one).",
+        "",
+    ]
+    names = list(FEATURE_SETS)
+    rows = []
+    for model, shares in visible.items():
+        for case in sorted(shares):
+            per = shares[case]
+            rows.append([model.upper(), case, str(len(per[names[0]])), *(f"{float(np.median(per[n])):.2f}" for n in names)])
+    return lines + _table(["model", "case", "runs", *names], rows)
 
 
 # --------------------------------------------------------------------------------------------

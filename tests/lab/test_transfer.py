@@ -243,3 +243,18 @@ def test_the_quick_transfer_writes_four_judgements_side_by_side_with_consistent_
     # The cache holds both models and a second run reuses it (nothing simulated again).
     data = run_transfer(CONFIG, out / "again", "x", size="quick", data_file=out / "data.pkl")
     assert data["simulation_s"] == doc["simulation_s"]
+
+
+@pytest.mark.slow
+def test_the_quick_transfer_reports_what_the_sensors_observe_of_its_training_faults(quick_report) -> None:  # type: ignore[no-untyped-def]
+    """The quick plan's training faults are rear outer coils, seen in every window on both models."""
+    out, doc = quick_report
+    assert set(doc["visibility"]) == {"a", "b"}
+    for model, cases in doc["visibility"].items():
+        assert set(cases) == {"full rear_outer", "tare rear_outer"}, model
+        for case, per in cases.items():
+            assert set(per) == {"fused", "real", "complex", "shares", "all"}
+            assert per["fused"] >= 0.9, (model, case, per)
+    readme = (out / "README.md").read_text()
+    assert "## What the sensors can observe" in readme
+    assert any(line.startswith("| A | full rear_outer |") for line in readme.splitlines())
