@@ -47,7 +47,8 @@ from bogiemon.daemon import tomlout
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.decision import INDICATOR_FIELDS
-from bogiemon.daemon.health import NoiseFloorFit, StructureFit, assess_window, learn_noise_floor, learn_structure, merge_noise_floors, merge_structures
+from bogiemon.daemon.health import StructureFit, assess_window, learn_structure, merge_structures
+from bogiemon.daemon.noise_floor import NoiseFloorFit, learn_noise_floor, merge_noise_floors
 from bogiemon.daemon.commissioning import fit_discriminant, fit_spread, load_signature, runs_of, split_loads
 from bogiemon.daemon.models import Levels, LoadDiscriminant, LoadSignature, coupling_features, load_features, shipped_models
 from bogiemon.daemon.rules import Threshold, fit_threshold
@@ -112,7 +113,7 @@ class CalibrationResult:
     structure: StructureFit | None = None
     # With both load states: the wagon's own line between them (daemon/commissioning.py).
     discriminant: LoadDiscriminant | None = None
-    # Its sensors' noise floors (daemon/health.py): in force after commissioning, so a sensor whose
+    # Its sensors' noise floors (daemon/noise_floor.py): in force after commissioning, so a sensor whose
     # floor rises far above what the healthy wagon showed is noisy.
     noise_floor: NoiseFloorFit | None = None
 

@@ -42,7 +42,7 @@ N_JUDGED_BANDS = len(JUDGED_BANDS_HZ) - 1
 # bin lies beyond Nyquist: at the default 500 Hz the last one ends at 250 Hz, in the accelerometers'
 # anti-alias roll-off, where a bogie frame gives least and white noise that enters after the filter
 # stands out by orders of magnitude; at a lower rate the bands above Nyquist are empty). Only the
-# sensor health check reads them (daemon/health.py: the noise floor).
+# sensor health check reads them (daemon/noise_floor.py).
 BANDS_HZ: tuple[float, ...] = JUDGED_BANDS_HZ + (128.0, 181.0, 256.0)
 N_BANDS = len(BANDS_HZ) - 1
 # The channel pairs of the off-diagonal entries, in the order stored.

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.daemon.diagnosis import softer_signs
 from bogiemon.daemon.models import coupling_features
 from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
 from bogiemon.detection.features import BOUNCE, PITCH, ROLL, band_label, modal_coherency
@@ -180,13 +181,29 @@ def visibility(data: EvaluationData, feature_sets: Mapping[str, Features] = FEAT
     return out
 
 
+@dataclass(frozen=True)
+class CaseVisibility:
+    """One broken-coil case's visibility per feature set: the median over its fault runs."""
+
+    case: str
+    runs: int
+    median: dict[str, float]
+
+
+def summarize(shares: Visibility) -> list[CaseVisibility]:
+    """Per case (sorted), the median visibility of its runs under each feature set."""
+    return [
+        CaseVisibility(case, len(next(iter(per.values()))), {name: float(np.median(v)) for name, v in per.items()})
+        for case, per in sorted(shares.items())
+    ]
+
+
 def visibility_table(model: str, shares: Visibility) -> list[str]:
     names = list(FEATURE_SETS)
     lines = [f"MODEL {model.upper()}, training fleet: the share of a broken coil's windows above the healthy 99.9th percentile (median over runs)",
              f"  {'case':20} {'runs':>4} " + " ".join(f"{n:>8}" for n in names)]  # fmt: skip
-    for case in sorted(shares):
-        per = shares[case]
-        lines.append(f"  {case:20} {len(per[names[0]]):4} " + " ".join(f"{np.median(per[n]):8.2f}" for n in names))
+    for c in summarize(shares):
+        lines.append(f"  {c.case:20} {c.runs:4} " + " ".join(f"{c.median[n]:8.2f}" for n in names))
     return lines
 
 
@@ -195,8 +212,10 @@ def visibility_table(model: str, shares: Visibility) -> list[str]:
 
 
 def softer_sign(pair: str, corner: Corner) -> int:
-    """The sign a pair's real coherency shifts by when `corner` gets softer (module docstring)."""
-    return {"bounce-pitch": corner.x_sign, "bounce-roll": corner.y_sign, "pitch-roll": corner.x_sign * corner.y_sign}[pair]
+    """The sign a pair's real coherency shifts by when `corner` gets softer: the diagnosis's rule
+    for pitch-roll and bounce-roll (daemon/diagnosis.py softer_signs), x for bounce-pitch."""
+    pitch_roll, bounce_roll = softer_signs(corner)
+    return {"bounce-pitch": corner.x_sign, "bounce-roll": bounce_roll, "pitch-roll": pitch_roll}[pair]
 
 
 def aligned_shifts(shifts: Mapping[Corner, NDArray[np.float64]]) -> NDArray[np.float64]:

@@ -10,15 +10,8 @@ from scipy import signal
 
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.config import ConfigError, parse_config
-from bogiemon.daemon.health import (
-    HealthSettings,
-    SensorProblem,
-    assess_window,
-    floor_noisy_channels,
-    learn_noise_floor,
-    merge_noise_floors,
-    noise_floors,
-)
+from bogiemon.daemon.health import HealthSettings, SensorProblem, assess_window
+from bogiemon.daemon.noise_floor import floor_noisy_channels, learn_noise_floor, merge_noise_floors, noise_floors
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings, WindowIndicators, from_modal
 from bogiemon.detection.spectra import BANDS_HZ, N_BANDS, WindowSpectra
 

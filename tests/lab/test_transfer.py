@@ -1,5 +1,6 @@
-"""The transfer evaluation (lab/robust/transfer.py): the fleet on either wagon model, the new runs,
-the priors' healthy rates on wagons far from the training fleet, and the report's counts."""
+"""The transfer evaluation (lab/robust/transfer.py, transfer_plan.py, transfer_report.py): the fleet
+on either wagon model, the new runs, the priors' healthy rates on wagons far from the training
+fleet, and the report's counts."""
 
 from __future__ import annotations
 
@@ -30,7 +31,9 @@ from bogiemon.lab.robust.fleet import (
 from bogiemon.lab.robust.wagons import apply_spread, make_wagon
 from bogiemon.lab.robust.judge import DaemonMethod, RunResult, with_overrides
 from bogiemon.lab.robust.score import score_method
-from bogiemon.lab.robust.transfer import MODELS, TARGETS, run_transfer, transfer_plans
+from bogiemon.lab.robust.transfer import run_transfer
+from bogiemon.lab.robust.transfer_plan import MODELS, transfer_plans
+from bogiemon.lab.robust.transfer_report import TARGETS
 from bogiemon.simulator.model_b.parameters import default_parameter_set as model_b_parameters
 from bogiemon.simulator.run import simulate_batch
 from bogiemon.simulator.sensors import SensorModel
