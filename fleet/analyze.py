@@ -373,6 +373,7 @@ def analyze_fleet(
         if client is None:
             own = Client(scheduler) if scheduler else local_client(n_workers)
             client = own
+        futures: list[Any] = []
         try:
             workers = len(client.scheduler_info().get("workers", {}))
             futures = client.map(analyze_day, todo, pure=False)
@@ -382,6 +383,12 @@ def analyze_fleet(
                 done += 1
                 if progress is not None:
                     progress(done, len(todo))
+        except BaseException:
+            # Interrupted or failed: no wagon-day not yet started starts after this (on a shared
+            # scheduler it would run on unasked). One already running ends and writes its partition
+            # whole (atomically), which the next run reuses.
+            client.cancel(futures)
+            raise
         finally:
             if own is not None:
                 cluster = own.cluster
