@@ -10,6 +10,7 @@ import uuid
 from pathlib import Path
 
 import can
+import can.interfaces.virtual
 import numpy as np
 from numpy.typing import NDArray
 
@@ -28,6 +29,28 @@ PER_NODE = load_layout(None, "per-node")
 def channel_name() -> str:
     """A virtual CAN channel no other test uses."""
     return f"test-{uuid.uuid4().hex[:12]}"
+
+
+def stamped_sender(channel: str) -> can.BusABC:
+    """A virtual bus that sends frames with their own time stamps, not the wall clock at send time.
+
+    The receive times are then the recording's, whatever the machine does: on a shared one the
+    sending thread can stall for longer than a quarter of a second, which the source rightly reads
+    as a silence and so as a new segment.
+    """
+    return can.interfaces.virtual.VirtualBus(channel=channel, preserve_timestamps=True)
+
+
+def silences_heard(listener: can.BusABC, fs_hz: float = FS_HZ, modulus: int = 256) -> int:
+    """How often the frames queued on listener pause longer than a source bridges (half a counter period).
+
+    For the tests whose sender stamps frames with the wall clock: a source may start a new segment
+    at each such pause, and at no other place.
+    """
+    times_s = []
+    while (message := listener.recv(timeout=0.0)) is not None:
+        times_s.append(message.timestamp)
+    return int((np.diff(times_s) > (modulus // 2 - 1) / fs_hz).sum())
 
 
 def coded_accel(k: NDArray[np.int64]) -> NDArray[np.float64]:

@@ -20,7 +20,16 @@ from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import UnknownBusKind
 from bogiemon.drivers.player import encode_instants, open_player_bus, play
 from bogiemon.drivers.segments import SampleQueue
-from tests.drivers.frames import FS_HZ, HUB, PER_NODE, channel_name, check_blocks, coded_accel, layout_frames
+from tests.drivers.frames import (
+    FS_HZ,
+    HUB,
+    PER_NODE,
+    channel_name,
+    check_blocks,
+    coded_accel,
+    layout_frames,
+    stamped_sender,
+)
 
 LAYOUTS = {"hub": HUB, "per-node": PER_NODE}
 
@@ -235,7 +244,7 @@ def test_round_trip_through_the_player_reproduces_the_samples_within_one_lsb(nam
     rng = np.random.default_rng(7)
     accel = rng.standard_normal((1500, 3)) * 4.0 + 9.81
     with CanSource(CanBusPort("virtual", channel), layout, FS_HZ) as source:
-        bus = open_player_bus("virtual", channel)
+        bus = stamped_sender(channel)
         try:
             play(bus, layout, accel, FS_HZ, rate=0)
         finally:
@@ -269,7 +278,7 @@ def test_a_read_returns_what_arrived_when_the_timeout_ends() -> None:
 def test_the_source_reopens_a_vanished_bus_with_backoff_and_reports_a_gap() -> None:
     port = FlakyPort(channel_name())
     source = CanSource(port, HUB, FS_HZ, backoff_min_s=0.01, backoff_max_s=0.04)
-    sender = open_player_bus("virtual", port.channel)
+    sender = stamped_sender(port.channel)
     try:
         for message in layout_frames(HUB, np.arange(0, 30)):
             sender.send(message)

@@ -8,6 +8,7 @@ import threading
 from pathlib import Path
 
 import can
+import can.interfaces.virtual
 import numpy as np
 import pytest
 
@@ -16,7 +17,7 @@ from bogiemon.daemon.cli.main import main
 from bogiemon.drivers.candb import LAYOUTS
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.player import PlayError, play
-from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, write_recording
+from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, silences_heard, write_recording
 
 
 class RecordingBus(can.BusABC):
@@ -85,15 +86,19 @@ def test_a_full_transmit_queue_is_waited_out_then_given_up_on() -> None:
 def test_cli_play_on_the_virtual_bus_feeds_the_can_source(tmp_path: Path, layout: str) -> None:
     accel = write_recording(tmp_path / "run.csv", 800)
     channel = channel_name()
+    listener = can.interfaces.virtual.VirtualBus(channel=channel)  # hears the stamps the source gets
     with CanSource(CanBusPort("virtual", channel), HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
         argv = ["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel, "--rate", "0"]
         assert main([*argv, "--layout", layout]) == 0
         blocks = []
         while (block := source.read(0.05)) is not None:
             blocks.append(block)
+    silences = silences_heard(listener)
+    listener.shutdown()
     got = np.concatenate([b.accel_mps2 for b in blocks])
     assert got.shape == (800, 3) and np.abs(got - accel).max() <= LSB_MPS2 / 2 + 1e-12
-    assert source.counters.gaps == 0 and source.counters.bad_frames == 0
+    # The player stamps frames with the wall clock: a stall of this shared machine can pause them.
+    assert source.counters.gaps <= silences and source.counters.bad_frames == 0
 
 
 def test_cli_play_at_real_time_pace_runs_beside_a_reader(tmp_path: Path) -> None:
