@@ -256,6 +256,12 @@ def direction_rows(data: EvaluationData, load: str = "full") -> list[list[str]]:
 # Figures
 
 
+def _in_view(ratios: Sequence[float]) -> np.ndarray:
+    """The finite alarm ratios, clipped to the histogram's 1e-2..1e2 axis (a cell may have none)."""
+    x = np.asarray(ratios, dtype=np.float64)
+    return np.clip(x[np.isfinite(x)], 1e-2, 1e2)
+
+
 def render_figures(data: EvaluationData, scores: Sequence[MethodScore], default: MethodScore, out_dir: Path) -> list[str]:
     import matplotlib
 
@@ -287,11 +293,13 @@ def render_figures(data: EvaluationData, scores: Sequence[MethodScore], default:
     # 2. The default method's alarm ratio: healthy windows against the faults' windows.
     fig, ax = plt.subplots(figsize=(11, 5.5), constrained_layout=True)
     bins = np.logspace(-2, 2, 81)
-    ax.hist(np.clip(default.healthy_ratios, 1e-2, 1e2), bins=bins, density=True, histtype="stepfilled", alpha=0.35, color="0.4", label="healthy test runs")
+    healthy = _in_view(default.healthy_ratios)
+    if healthy.size:
+        ax.hist(healthy, bins=bins, density=True, histtype="stepfilled", alpha=0.35, color="0.4", label="healthy test runs")
     for key, sev, colour in (("type_a.full.rear_outer", 0.0, "C3"), ("type_b.full", 1.5, "C1"), ("type_a.tare.rear_outer", 0.0, "C2"), ("type_a.tare.rear_inner", 0.0, "C0")):
-        ratios = [x for c in default.cells if c.key == key and c.severity == sev for x in c.ratios]
-        if ratios:
-            ax.hist(np.clip(ratios, 1e-2, 1e2), bins=bins, density=True, histtype="step", lw=1.6, color=colour, label=case_label(key, sev))
+        ratios = _in_view([x for c in default.cells if c.key == key and c.severity == sev for x in c.ratios])
+        if ratios.size:
+            ax.hist(ratios, bins=bins, density=True, histtype="step", lw=1.6, color=colour, label=case_label(key, sev))
     ax.axvline(1.0, color="k", lw=1, ls="--")
     ax.set(xscale="log", xlabel="alarm ratio (judged value / alarm level; >= 1 is an alarm window)", ylabel="density",
            title=f"{default.method}: windows wholly after the fault onset, against healthy windows")  # fmt: skip
