@@ -87,14 +87,16 @@ def test_cli_play_on_the_virtual_bus_feeds_the_can_source(tmp_path: Path, layout
     accel = write_recording(tmp_path / "run.csv", 800)
     channel = channel_name()
     listener = can.interfaces.virtual.VirtualBus(channel=channel)  # hears the stamps the source gets
-    with CanSource(CanBusPort("virtual", channel), HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
-        argv = ["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel, "--rate", "0"]
-        assert main([*argv, "--layout", layout]) == 0
-        blocks = []
-        while (block := source.read(0.05)) is not None:
-            blocks.append(block)
-    silences = silences_heard(listener)
-    listener.shutdown()
+    try:
+        with CanSource(CanBusPort("virtual", channel), HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
+            argv = ["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel, "--rate", "0"]
+            assert main([*argv, "--layout", layout]) == 0
+            blocks = []
+            while (block := source.read(0.05)) is not None:
+                blocks.append(block)
+        silences = silences_heard(listener)
+    finally:
+        listener.shutdown()
     got = np.concatenate([b.accel_mps2 for b in blocks])
     assert got.shape == (800, 3) and np.abs(got - accel).max() <= LSB_MPS2 / 2 + 1e-12
     # The player stamps frames with the wall clock: a stall of this shared machine can pause them.

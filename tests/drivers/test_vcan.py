@@ -37,7 +37,7 @@ from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.canbus import BusRole, open_bus
 from bogiemon.drivers.player import encode_instants
 from bogiemon.drivers.replay import CanLogReplaySource
-from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, write_recording
+from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, silences_heard, write_recording
 
 CHANNEL = "vcan0"
 BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
@@ -245,24 +245,28 @@ def test_bogiemon_play_into_the_can_source_reproduces_the_recording(tmp_path: Pa
             "--layout", layout, "--ready-file", str(ready)]  # fmt: skip
     port = CanBusPort(kind, channel, receive_buffer_bytes=1 << 20)
     deadline_s = time.monotonic() + PATIENCE_S
-    with CanSource(port, HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
-        assert source.connected, source.last_error  # open before the player: no frame is missed
-        with start_play(kind, argv, tmp_path) as player:
-            wait_until_ready(player, ready, deadline_s)
-            blocks = read_while_playing(source, player, 1000, deadline_s)
-            assert wait_until_ended(player, deadline_s) == 0, player.stderr()
+    # Hears the receive stamps the source gets (its buffer holds all 4000 per-node frames).
+    listener = CanBusPort(kind, channel, receive_buffer_bytes=1 << 23).open()
+    try:
+        with CanSource(port, HUB if layout == "hub" else PER_NODE, FS_HZ) as source:
+            assert source.connected, source.last_error  # open before the player: no frame is missed
+            with start_play(kind, argv, tmp_path) as player:
+                wait_until_ready(player, ready, deadline_s)
+                blocks = read_while_playing(source, player, 1000, deadline_s)
+                assert wait_until_ended(player, deadline_s) == 0, player.stderr()
+        silences = silences_heard(listener)
+    finally:
+        listener.shutdown()
     got = np.concatenate([b.accel_mps2 for b in blocks])
     assert got.shape == (1000, 3)
     assert np.abs(got - accel).max() <= LSB_MPS2 / 2 + 1e-12
     counters = source.counters
     assert counters.bad_frames == 0 and counters.extra["lost_samples"] == 0 and counters.extra["duplicates"] == 0
     assert counters.extra["dropped_by_kernel"] == 0 and counters.extra["out_of_order"] == 0
-    # A player process (vcan0) never pauses long; the virtual bus's player is a thread of this
-    # process, and on a loaded machine the interpreter lock can hold it off longer than the
-    # sequence counter's silence bound (half a wrap, 0.25 s): the source then rightly starts a new
+    # A player held off longer than the sequence counter's silence bound (half a wrap, 0.25 s) by
+    # a loaded machine or a slow VM pauses the receive stamps: the source then rightly starts a new
     # segment. Every sample is still there and in order (above), so only there are gaps allowed.
-    if kind == "socketcan":
-        assert counters.gaps == 0
+    assert counters.gaps <= silences
     granted = port.effective_receive_buffer_bytes  # a socket's buffer: SocketCAN only
     assert (granted is not None and granted > 0) if kind == "socketcan" else granted is None
 
