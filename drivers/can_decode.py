@@ -49,6 +49,14 @@ CAN_COUNTERS = (
 )
 
 
+def max_silence_s(modulus: int, fs_hz: float) -> float:
+    """The longest pause a CAN stream may have and stay one segment: just under half a counter period.
+
+    Beyond it a counter jump is ambiguous (see SequenceTracker).
+    """
+    return (modulus // 2 - 1) / fs_hz
+
+
 def status_bits(over_range: NDArray[np.float64], fault: NDArray[np.float64]) -> NDArray[np.uint8]:
     return (over_range != 0).astype(np.uint8) * np.uint8(SensorStatus.OVER_RANGE) | (fault != 0).astype(
         np.uint8
@@ -67,13 +75,12 @@ class CanFrameDecoder:
         for name in CAN_COUNTERS:
             counters.extra.setdefault(name, 0)
         modulus = layout.counter_modulus
-        # Half a counter period: beyond it a counter jump is ambiguous (see SequenceTracker).
-        max_silence_s = (modulus // 2 - 1) / fs_hz
+        silence_s = max_silence_s(modulus, fs_hz)
         self._keys = {m.key: m for m in layout.messages}
         self._other_keys = np.fromiter(layout.other_keys, np.int64, len(layout.other_keys))
         self._guard = TimestampGuard(counters)
-        self._tracker = SequenceTracker(modulus, max_silence_s)
-        self._aligner = NodeAligner(modulus, max_silence_s) if layout.name == "per-node" else None
+        self._tracker = SequenceTracker(modulus, silence_s)
+        self._aligner = NodeAligner(modulus, silence_s) if layout.name == "per-node" else None
 
     def restart(self) -> None:
         """The bus was reopened or went bus-off: whatever comes next starts a new segment."""

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block
+from bogiemon.drivers.can_decode import max_silence_s
 from bogiemon.drivers.candb import CanLayout, load_layout
 from bogiemon.drivers.player import encode_instants
 from bogiemon.drivers.recording import write_csv_recording
@@ -41,8 +42,8 @@ def stamped_sender(channel: str) -> can.BusABC:
     return can.interfaces.virtual.VirtualBus(channel=channel, preserve_timestamps=True)
 
 
-def silences_heard(listener: can.BusABC, fs_hz: float = FS_HZ, modulus: int = 256) -> int:
-    """How often the frames queued on listener pause longer than a source bridges (half a counter period).
+def silences_heard(listener: can.BusABC, layout: CanLayout) -> int:
+    """How often the frames queued on listener pause longer than a CAN source bridges.
 
     For the tests whose sender stamps frames with the wall clock: a source may start a new segment
     at each such pause, and at no other place.
@@ -50,7 +51,7 @@ def silences_heard(listener: can.BusABC, fs_hz: float = FS_HZ, modulus: int = 25
     times_s = []
     while (message := listener.recv(timeout=0.0)) is not None:
         times_s.append(message.timestamp)
-    return int((np.diff(times_s) > (modulus // 2 - 1) / fs_hz).sum())
+    return int((np.diff(times_s) > max_silence_s(layout.counter_modulus, FS_HZ)).sum())
 
 
 def coded_accel(k: NDArray[np.int64]) -> NDArray[np.float64]:

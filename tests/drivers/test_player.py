@@ -94,7 +94,7 @@ def test_cli_play_on_the_virtual_bus_feeds_the_can_source(tmp_path: Path, layout
             blocks = []
             while (block := source.read(0.05)) is not None:
                 blocks.append(block)
-        silences = silences_heard(listener)
+        silences = silences_heard(listener, source.layout)
     finally:
         listener.shutdown()
     got = np.concatenate([b.accel_mps2 for b in blocks])

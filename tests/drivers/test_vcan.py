@@ -254,7 +254,7 @@ def test_bogiemon_play_into_the_can_source_reproduces_the_recording(tmp_path: Pa
                 wait_until_ready(player, ready, deadline_s)
                 blocks = read_while_playing(source, player, 1000, deadline_s)
                 assert wait_until_ended(player, deadline_s) == 0, player.stderr()
-        silences = silences_heard(listener)
+        silences = silences_heard(listener, source.layout)
     finally:
         listener.shutdown()
     got = np.concatenate([b.accel_mps2 for b in blocks])
