@@ -37,7 +37,7 @@ from timing import Figure, table  # noqa: E402
 
 from bogiemon.daemon.config import load_config  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
-from bogiemon.daemon.monitor import WindowReport  # noqa: E402
+from bogiemon.daemon.verdict import WindowVerdict  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
 from bogiemon.drivers.can_source import CanBusPort, CanSource  # noqa: E402
 from bogiemon.drivers.candb import load_layout  # noqa: E402
@@ -86,7 +86,7 @@ class _SteadyState:
         self.last: tuple[float, float, float] | None = None
         self.latencies_s: list[float] = []
 
-    def observe(self, report: WindowReport) -> None:
+    def observe(self, report: WindowVerdict) -> None:
         now = (time.process_time(), time.clock_gettime(self.player_clock), time.monotonic())
         # The CAN source stamps samples with the bus's receive times (time.time()): end_s is
         # one sample period after the window's last sample.

@@ -94,7 +94,7 @@ DBC_ERROR = "bogiemon.drivers.candb.DbcError"
 CONFIG_ERROR = "bogiemon.daemon.config.ConfigError"
 STORE_ERROR = "bogiemon.daemon.store.StoreError"
 VALIDATION_ERROR = "pydantic.ValidationError"
-SCHEMA_ERROR = "bogiemon.daemon.delivery.schema.SchemaError"  # the schema's own error, if it gets one
+SCHEMA_ERROR = "bogiemon.daemon.messages.SchemaError"  # the schema's own error, if it gets one
 CLEAR_ERRORS: dict[str, tuple[str, ...]] = {
     "can-hub": (),  # a decoder never raises for what is on the bus: it counts bad frames
     "can-per-node": (),

@@ -24,12 +24,12 @@ from typing import Any
 
 import fuzz_core
 from bogiemon.daemon.cli.listen import format_received
-from bogiemon.daemon.delivery import schema
+from bogiemon.daemon import messages as schema
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.listener import Listener, ReceivedStore
 from bogiemon.daemon.delivery.memory_transport import MemoryBroker
 from bogiemon.daemon.delivery.publisher import FETCH_N, OutboxPublisher, PublisherSettings
-from bogiemon.daemon.delivery.schema import EventMessage, SchemaError, StatusMessage, dump, encode_event, stored_status
+from bogiemon.daemon.messages import EventMessage, SchemaError, StatusMessage, dump, encode_event, stored_status
 from bogiemon.daemon.delivery.transport import SUCCESS, MqttTransport, Publication, Reason, TransportEvents
 from bogiemon.daemon.store import EventStore
 
@@ -351,7 +351,7 @@ def run_outbox(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdi
         sent: list[int] = []
         after = 0
         for _ in range(1000):
-            rows = store.pending_events(after_seq=after, limit=FETCH_N)
+            rows = store.outbox.pending_events(after_seq=after, limit=FETCH_N)
             for row in rows:
                 try:  # what the publisher sends, or refuses (counted, left pending) before sending
                     payload = encode_event(WAGON, row.seq, row.event)
@@ -364,7 +364,7 @@ def run_outbox(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdi
             if len(rows) < FETCH_N:
                 break
             after = rows[-1].seq
-        for status in store.pending_status(after_seq=0, limit=FETCH_N):
+        for status in store.outbox.pending_status(after_seq=0, limit=FETCH_N):
             try:  # the publisher's own check of a stored status record before it goes out
                 payload = stored_status(status.body)
             except SchemaError:
@@ -372,13 +372,13 @@ def run_outbox(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdi
             verdict = _check_payload(payload, StatusMessage)
             if verdict is not None:
                 return "a status record " + verdict
-        store.outbox_counts()
+        store.outbox.counts()
         if data["publish"] and sent:
             verdict = _publish(state_dir, sent)
             if verdict is not None:
                 return verdict
-        store.trim_outbox(10, time.time())
-        store.outbox_counts()
+        store.outbox.trim_outbox(10, time.time())
+        store.outbox.counts()
     finally:
         store.close()
     return None

@@ -23,7 +23,8 @@ from typing import Any
 import fuzz_core
 from bogiemon.daemon.cli.events import format_event
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.daemon.store import DB_NAME, SCHEMA_VERSION, EventStore
+from bogiemon.daemon.store import DB_NAME, EventStore
+from bogiemon.daemon.store_file import SCHEMA_VERSION
 
 PAGE_BYTES = 4096
 BASES = 6  # distinct healthy stores the damage starts from
@@ -52,8 +53,8 @@ def base(index: int) -> tuple[dict[str, bytes], list[list[Any]]]:
         for i, event in enumerate(events):
             store.append([event], state={"monitor": {"decision": {"mode": "normal", "n": i}}})
         if n and index % 2:
-            store.mark_delivered([1], [], 1.7e9)
-            store.queue_status(1.7e9, '{"schema": "bogiemon.status/1"}')
+            store.outbox.mark_delivered([1], [], 1.7e9)
+            store.outbox.queue_status(1.7e9, '{"schema": "bogiemon.status/1"}')
         if index == 5:  # a copy taken while the daemon runs: the last commits only in the log
             files = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
         else:
@@ -150,9 +151,9 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     try:
         store.get_state("monitor")
         store.count()
-        store.pending_events()
-        store.pending_status()
-        store.outbox_counts()
+        store.outbox.pending_events()
+        store.outbox.pending_status()
+        store.outbox.counts()
         store.append([Event(time_s=1.8e9, kind=EventKind.SUSPECTED, severity=DEFAULT_SEVERITY[EventKind.SUSPECTED], config_hash="fuzz")],
                      state={"monitor": {"decision": {"mode": "suspected"}}})  # fmt: skip
         after = store.events()

@@ -24,7 +24,8 @@ from soak_schedule import FS_HZ, HOUR_S, T0_S, Action, Phase, Schedule  # noqa: 
 
 from bogiemon.daemon.config import load_config  # noqa: E402
 from bogiemon.daemon.decision import Level  # noqa: E402
-from bogiemon.daemon.monitor import WindowReport  # noqa: E402
+from bogiemon.daemon.verdict import WindowVerdict  # noqa: E402
+from bogiemon.drivers.atomic import write_text_atomically  # noqa: E402
 from bogiemon.daemon.notify import Notifier  # noqa: E402
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, SensorStatus, Source  # noqa: E402
 
@@ -130,7 +131,7 @@ class Observer:
         self.trend_below_warning: list[tuple[float, bool]] = []
         self._cond = threading.Condition()
 
-    def observe(self, report: WindowReport) -> None:
+    def observe(self, report: WindowVerdict) -> None:
         with self._cond:
             self.windows += 1
             self.last_end_s = report.window.end_s
@@ -341,7 +342,7 @@ class SoakSource(Source):
                 self._waited_too_long("the window before a reload was never judged")
                 return None  # the core is still on the last blocks: come back
             variant = "bad" if action.kind == "bad-reload" else self.feed.next_variant()
-            write_atomically(self.config_path, self.variants[variant])
+            write_text_atomically(self.config_path, self.variants[variant])
             self._reload_sent, self._waiting_since = (len(self.notifier.statuses), time.monotonic()), None
             os.kill(os.getpid(), signal.SIGHUP)
             return None
@@ -353,7 +354,7 @@ class SoakSource(Source):
         self._reload_at = self._reload_sent = self._waiting_since = None
         if action.kind == "bad-reload":
             self.lifetime.bad_reloads += 1
-            write_atomically(self.config_path, self.variants[self.feed.variant])  # a restart must read a valid file
+            write_text_atomically(self.config_path, self.variants[self.feed.variant])  # a restart must read a valid file
         else:
             self.lifetime.reloads += 1
             self.feed.variant = self.feed.next_variant()
@@ -363,10 +364,6 @@ class SoakSource(Source):
         return None
 
 
-def write_atomically(path: Path, text: str) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def rss_mb() -> float:

@@ -57,5 +57,13 @@ def analyze_recording(
 
 
 def indicators_as_dict(ind: WindowIndicators) -> dict[str, Any]:
-    """Every field of a window record (nested records as objects, tuples as lists), JSON-ready."""
-    return dataclasses.asdict(ind)
+    """Every field of a window record (nested records as objects, tuples as lists), JSON-ready: the
+    band spectra as their bands, powers and the real and imaginary parts of the cross-spectra."""
+    out = dataclasses.asdict(dataclasses.replace(ind, spectra=None))
+    if ind.spectra is not None:
+        cross = ind.spectra.cross
+        out["spectra"] = {
+            "bands_hz": list(ind.spectra.bands_hz), "power": ind.spectra.power.tolist(),
+            "cross_re": cross.real.tolist(), "cross_im": cross.imag.tolist(),
+        }  # fmt: skip
+    return out

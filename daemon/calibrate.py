@@ -46,17 +46,19 @@ from numpy.typing import NDArray
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig
-from bogiemon.daemon.decision import INDICATOR_FIELDS
-from bogiemon.daemon.health import StructureFit, assess_window, learn_structure, merge_structures
+from bogiemon.daemon.events import INDICATOR_FIELDS
+from bogiemon.daemon.health import assess_window
+from bogiemon.daemon.structure import StructureFit, learn_structure, merge_structures
 from bogiemon.daemon.noise_floor import NoiseFloorFit, learn_noise_floor, merge_noise_floors
 from bogiemon.daemon.commissioning import fit_discriminant, fit_spread, load_signature, runs_of, split_loads
 from bogiemon.daemon.models import Levels, LoadDiscriminant, LoadSignature, coupling_features, load_features, shipped_models
 from bogiemon.daemon.rules import Threshold, fit_threshold
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.features import COUPLING_NAMES
 
 MIN_WINDOWS = 30
-LOADS = ("full", "tare")
+LOADS = tuple(LoadState)
 
 
 class CalibrationError(ValueError):
@@ -202,7 +204,7 @@ def calibrate_windows(
         raise CalibrationError(f"need 0 < alarm rate ({alarm_rate}) <= warning rate ({warning_rate}) < 1")
     health = config.health_settings()
     geometry = config.bogie_geometry()
-    by_load: dict[str, list[WindowIndicators]] = {ld: [] for ld in LOADS}
+    by_load: dict[LoadState, list[WindowIndicators]] = {ld: [] for ld in LOADS}
     n_windows = 0
     judgeable = []
     for window in windows:
@@ -216,8 +218,8 @@ def calibrate_windows(
         for ld, ws in split.windows.items():
             by_load[ld] = ws
     else:
-        by_load[load] = judgeable
-    wanted = LOADS if load == "auto" else (load,)
+        by_load[LoadState(load)] = judgeable
+    wanted = LOADS if load == "auto" else (LoadState(load),)
     results, skipped = [], {}
     for ld in wanted:
         judged = by_load[ld]
@@ -251,9 +253,9 @@ def calibrate_windows(
 
 def _discriminant(loads: Sequence[LoadCalibration], config: BogiemonConfig) -> LoadDiscriminant | None:
     rows = {c.load: c.load_rows for c in loads if c.load_rows is not None and len(c.load_rows)}
-    if set(rows) != {"full", "tare"}:
+    if set(rows) != set(LoadState):
         return None
-    return fit_discriminant(rows["full"], rows["tare"], config.processing.window_s / config.processing.hop_s)
+    return fit_discriminant(rows[LoadState.FULL], rows[LoadState.TARE], config.processing.window_s / config.processing.hop_s)
 
 
 def _indicator(name: str, values: list[float], warning_rate: float, alarm_rate: float) -> IndicatorCalibration:

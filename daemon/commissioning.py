@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 
 from bogiemon.daemon.models import FusedModel, Levels, LoadDiscriminant, LoadModel, LoadSignature, excitation_of, load_features, whitening_of
 from bogiemon.daemon.rules import ALARM_MARGIN, MAD_TO_SIGMA, suspicion_k, sustained_level, trend_weight
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.detection import BogieGeometry, WindowIndicators
 
 LIMIT_MARGIN = 1.5
@@ -95,7 +96,7 @@ def split_loads(windows: Sequence[WindowIndicators], geometry: BogieGeometry, pr
     for w in windows:
         if load_features(w, geometry) is None:
             continue
-        out.setdefault("full" if prior.probability_full(w, geometry) >= 0.5 else "tare", []).append(w)
+        out.setdefault(LoadState.FULL if prior.probability_full(w, geometry) >= 0.5 else LoadState.TARE, []).append(w)
     note = (
         "split by the shipped load model, a prior fitted on our simulator: on another wagon commission each load from "
         "its own recordings (--load full, --load tare)"

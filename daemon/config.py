@@ -44,15 +44,16 @@ from bogiemon.daemon.config_sections import (  # the sections, importable from h
     WagonConfig,
     core_settings,
 )
-from bogiemon.daemon.decision import DecisionSettings, FusedSettings, Threshold
+from bogiemon.daemon.decision import DecisionSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import Baseline, Levels, LoadDiscriminant, LoadModel, LoadSignature, shipped_models
+from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Method
 from bogiemon.detection import BogieGeometry, ProcessingSettings
 
 if TYPE_CHECKING:
-    from bogiemon.daemon.monitor import MonitorSettings
     from bogiemon.daemon.recorder import RecorderSettings
+    from bogiemon.daemon.verdict import MonitorSettings
 
 # The whole tree is read from here: the sections live in daemon/config_sections.py.
 __all__ = [
@@ -174,9 +175,9 @@ class BogiemonConfig(Section):
             load: {name: Threshold(warning=t.warning, alarm=t.alarm, center=t.center) for name, t in per.items()}
             for load, per in d.thresholds.items()
         }
-        return DecisionSettings(thresholds, d.confirm_k, d.confirm_n, d.clear_after_windows, d.method, self.fused_settings())
+        return DecisionSettings(thresholds, d.confirm_k, d.confirm_n, d.clear_after_windows, d.method, self.fused_baselines())
 
-    def fused_baselines(self) -> dict[str, Baseline]:
+    def fused_baselines(self) -> dict[LoadState, Baseline]:
         """Per load: the wagon's calibrated baseline if the config has one, else the fleet's."""
         models = shipped_models(self.decision.models_dir).fused
         out = {}
@@ -186,14 +187,11 @@ class BogiemonConfig(Section):
             out[load] = model.calibrated(own.center, levels, own.covariance or None) if own is not None and levels is not None else model.population()
         return out
 
-    def fused_settings(self) -> FusedSettings:
-        return FusedSettings(self.fused_baselines(), self.bogie_geometry(), self.processing.hop_s)
-
     def check_models(self) -> None:
         """The fused method needs the windows its shipped model was fitted on; ConfigError if not."""
-        if self.decision.method != "fused":
+        if self.decision.method is not Method.FUSED:
             return
-        model = shipped_models(self.decision.models_dir).fused["full"]
+        model = shipped_models(self.decision.models_dir).fused[LoadState.FULL]
         if not model.fits(self.processing_settings()):
             raise ConfigError(
                 f"decision.method 'fused': its model (config/fused_model.toml) was fitted on windows of "
@@ -243,9 +241,9 @@ class BogiemonConfig(Section):
     def monitor_settings(self, load: str | None = None, fs_hz: float | None = None) -> MonitorSettings:
         """What the monitor needs from the config; `load` overrides decision.load (e.g. --load),
         fs_hz the configured rate (e.g. a recording's)."""
-        from bogiemon.daemon.monitor import MonitorSettings  # the monitor brings the store: only when built
+        from bogiemon.daemon.verdict import MonitorSettings  # the judgement: only when built
 
-        load = load or self.decision.load
+        load = LoadSetting(load or self.decision.load)
         self.check_models()
         return MonitorSettings(
             processing=self.processing_settings(fs_hz),
@@ -255,9 +253,9 @@ class BogiemonConfig(Section):
             load=load,
             config_hash=self.digest(),
             sensor_clear_after_windows=self.health.clear_after_windows,
-            load_model=self.load_model() if load == "auto" else None,
+            load_model=self.load_model() if load is LoadSetting.AUTO else None,
             load_states=self.load_signatures(),
-            load_discriminant=self.load_discriminant() if load == "auto" else None,
+            load_discriminant=self.load_discriminant() if load is LoadSetting.AUTO else None,
         )
 
     def recorder_settings(self) -> RecorderSettings | None:

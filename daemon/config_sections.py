@@ -9,7 +9,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, field_validator, model_validator
 
-from bogiemon.daemon.decision import INDICATOR_FIELDS
+from bogiemon.daemon.events import INDICATOR_FIELDS
+from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Method
 from bogiemon.detection import Corner, ProcessingSettings
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES
 
@@ -79,7 +80,6 @@ def core_settings(p: ProcessingConfig, fs_hz: float) -> ProcessingSettings:
     )
 
 
-LoadState = Literal["full", "tare"]
 IndicatorName = Literal["i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm"]
 assert set(IndicatorName.__args__) == set(INDICATOR_FIELDS)  # type: ignore[attr-defined]
 
@@ -99,9 +99,9 @@ class ThresholdConfig(Section):
 # Thresholds when the config names none (the shipped file states the same values): derived for
 # 120 s windows by the detection study (docs/study/defaults.md) with calibrate's rule from its
 # healthy runs at 40 to 120 km/h on ERRI low and high level track; recalibrate for other windows.
-DEFAULT_THRESHOLDS: dict[str, dict[str, ThresholdConfig]] = {
-    "full": {"i4_norm": ThresholdConfig(center=-9.44e-05, warning=0.059, alarm=0.114)},
-    "tare": {
+DEFAULT_THRESHOLDS: dict[LoadState, dict[str, ThresholdConfig]] = {
+    LoadState.FULL: {"i4_norm": ThresholdConfig(center=-9.44e-05, warning=0.059, alarm=0.114)},
+    LoadState.TARE: {
         "i4_norm": ThresholdConfig(center=-0.000235, warning=0.0292, alarm=0.044),
         "i3_norm": ThresholdConfig(center=0.00121, warning=0.0408, alarm=0.0657),
     },
@@ -190,8 +190,8 @@ class LoadDiscriminantConfig(Section):
 
 
 class DecisionConfig(Section):
-    method: Literal["fused", "thresholds"] = "fused"
-    load: Literal["auto", "full", "tare"] = "auto"
+    method: Method = Method.FUSED
+    load: LoadSetting = LoadSetting.AUTO
     confirm_k: int = Field(3, ge=1)
     confirm_n: int = Field(5, ge=1, le=100)
     clear_after_windows: int = Field(6, ge=1, le=100_000)
@@ -222,8 +222,9 @@ class DecisionConfig(Section):
     def _consistent(self) -> DecisionConfig:
         if self.confirm_k > self.confirm_n:
             raise ValueError(f"confirm_k ({self.confirm_k}) must not exceed confirm_n ({self.confirm_n})")
-        loads = ("full", "tare") if self.load == "auto" else (self.load,)
-        if self.method == "thresholds":
+        fixed = self.load.fixed()
+        loads = tuple(LoadState) if fixed is None else (fixed,)
+        if self.method is Method.THRESHOLDS:
             for load in loads:
                 if not self.thresholds.get(load):
                     raise ValueError(f"no thresholds for the load state '{load}': add [decision.thresholds.{load}.<indicator>]")

@@ -47,7 +47,6 @@ hysteresis. The state is a plain dict so the service can store it with each even
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
 from collections import deque
 from collections.abc import Mapping
@@ -56,54 +55,38 @@ from typing import Any
 
 import numpy as np
 
-from bogiemon.daemon.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.daemon.models import Baseline, coupling_features
-from bogiemon.daemon.rules import Level, Threshold, confirms, suspicion_k, trend_weight
-from bogiemon.detection import BogieGeometry, WindowIndicators
+from numpy.typing import NDArray
 
-INDICATOR_FIELDS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
-METHODS = ("fused", "thresholds")
+from bogiemon.daemon.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
+from bogiemon.daemon.events import DEFAULT_SEVERITY, INDICATOR_FIELDS, Event, EventKind
+from bogiemon.daemon.models import Baseline, finite_or_none
+from bogiemon.daemon.rules import Level, Threshold, confirms, suspicion_k, trend_weight
+from bogiemon.daemon.vocabulary import LoadState, Method, Mode
+from bogiemon.detection import BogieGeometry, WindowIndicators
+from bogiemon.detection.features import WindowFeatures
+
 FUSED_SCORE = "fused_score"  # the fused method's value in judgements and events
 FUSED_TREND = "fused_trend"  # its trend
 
 
-class Mode(enum.Enum):
-    NORMAL = "normal"
-    SUSPECTED = "suspected"
-    CONFIRMED = "confirmed"
-
-
-@dataclass(frozen=True)
-class FusedSettings:
-    """What the fused score and the diagnosis need: per load the baseline in force, and the
-    sensors' geometry for the coupling vector (and the diagnosis: daemon/diagnosis.py)."""
-
-    baselines: Mapping[str, Baseline]
-    geometry: BogieGeometry
-    hop_s: float  # between windows: the trend's weight per judged window follows from it
-
-    def trend_weight(self, load: str) -> float:
-        """The weight of one judged window in the trend's exponentially weighted mean."""
-        return trend_weight(self.hop_s, self.baselines[load].trend_tau_s)
-
-
 @dataclass(frozen=True)
 class DecisionSettings:
-    thresholds: Mapping[str, Mapping[str, Threshold]]  # load state -> indicator field -> threshold
+    thresholds: Mapping[LoadState, Mapping[str, Threshold]]  # load state -> indicator field -> threshold
     confirm_k: int = 3
     confirm_n: int = 5
     clear_after_windows: int = 6
-    method: str = "thresholds"
-    fused: FusedSettings | None = None  # needed by "fused"; with "thresholds" it adds the diagnosis
+    method: Method = Method.THRESHOLDS
+    # Per load state the fused score's healthy baseline in force: needed by "fused"; with
+    # "thresholds" they add the diagnosis.
+    baselines: Mapping[LoadState, Baseline] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not 1 <= self.confirm_k <= self.confirm_n:
             raise ValueError(f"need 1 <= confirm_k <= confirm_n, got {self.confirm_k} of {self.confirm_n}")
-        if self.method not in METHODS:
-            raise ValueError(f"unknown decision method '{self.method}': use one of {', '.join(METHODS)}")
-        if self.method == "fused" and self.fused is None:
-            raise ValueError("the fused method needs its baselines (FusedSettings)")
+        if self.method not in tuple(Method):
+            raise ValueError(f"unknown decision method '{self.method}': use one of {', '.join(Method)}")
+        if self.method is Method.FUSED and not self.baselines:
+            raise ValueError("the fused method needs its baselines")
         for load, per_indicator in self.thresholds.items():
             unknown = set(per_indicator) - set(INDICATOR_FIELDS)
             if unknown:
@@ -113,11 +96,13 @@ class DecisionSettings:
 @dataclass(frozen=True)
 class Judgement:
     """What one judged window showed: each judged value (indicators, or the fused score) and its
-    level; and the window's whitened coupling shift when a baseline was at hand (for diagnosis)."""
+    level against its limit; and the window's whitened coupling shift when a baseline was at hand
+    (for diagnosis)."""
 
     values: Mapping[str, float]
     levels: Mapping[str, Level]
-    shift: tuple[float, ...] | None = None
+    limits: Mapping[str, Threshold]  # of every value judged (the fused trend's too): what the events and displays state
+    shift: NDArray[np.float64] | None = None
     baseline: str | None = None  # "calibrated" or "population": the fused baseline in force
     # The judged value farthest from healthy as a fraction of its alarm level (>= 1: alarm):
     # one number per window, comparable across methods (the evaluation's figures use it).
@@ -133,6 +118,15 @@ class Judgement:
     def at_or_above(self, level: Level) -> dict[str, float]:
         return {name: self.values[name] for name, lv in self.levels.items() if lv >= level}
 
+    def headline(self) -> tuple[float, float, float]:
+        """(value, warning, alarm) for a display of the window: the fused score against its levels,
+        or (thresholds) the worst indicator's share of its alarm level against 1, with no warning
+        level of its own (NaN)."""
+        if FUSED_SCORE in self.values:
+            limit = self.limits[FUSED_SCORE]
+            return self.values[FUSED_SCORE], limit.warning, limit.alarm
+        return self.alarm_ratio, math.nan, 1.0
+
 
 @dataclass
 class DecisionState:
@@ -141,10 +135,10 @@ class DecisionState:
     clean_streak: int = 0
     # The whitened coupling shifts of the recent windows at alarm level (None: no shift known),
     # aligned with recent_alarms' alarm entries: what a diagnosis at confirmation averages.
-    recent_shifts: deque[list[float] | None] = field(default_factory=deque)
+    recent_shifts: deque[NDArray[np.float64] | None] = field(default_factory=deque)
     # Per load state: the trend's weighted mean of z and the fingerprint of the baseline it was
     # accumulated against (a new calibration restarts it from healthy, zero).
-    trend_mean: dict[str, list[float]] = field(default_factory=dict)
+    trend_mean: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     trend_baseline: dict[str, str] = field(default_factory=dict)
     # The last confirm_n judged windows at or above a warning level (SUSPECTED's k - 1 of n).
     recent_warnings: deque[bool] = field(default_factory=deque)
@@ -154,8 +148,8 @@ class DecisionState:
             "mode": self.mode.value,
             "recent_alarms": list(self.recent_alarms),
             "clean_streak": self.clean_streak,
-            "recent_shifts": [None if v is None else list(v) for v in self.recent_shifts],
-            "trend_mean": {k: list(v) for k, v in self.trend_mean.items()},
+            "recent_shifts": [None if v is None else v.tolist() for v in self.recent_shifts],
+            "trend_mean": {k: v.tolist() for k, v in self.trend_mean.items()},
             "trend_baseline": dict(self.trend_baseline),
             "recent_warnings": list(self.recent_warnings),
         }
@@ -165,70 +159,85 @@ class DecisionState:
         if not data:
             return cls()
         # States saved by older versions lack the shifts and the trend: they start empty.
-        shifts = deque(None if v is None else [float(x) for x in v] for v in data.get("recent_shifts", []))
+        shifts = deque(None if v is None else np.asarray(v, dtype=np.float64) for v in data.get("recent_shifts", []))
         return cls(
             Mode(data["mode"]),
             deque(bool(v) for v in data["recent_alarms"]),
             int(data["clean_streak"]),
             shifts,
-            {str(k): [float(x) for x in v] for k, v in data.get("trend_mean", {}).items()},
+            {str(k): np.asarray(v, dtype=np.float64) for k, v in data.get("trend_mean", {}).items()},
             {str(k): str(v) for k, v in data.get("trend_baseline", {}).items()},
             deque(bool(v) for v in data.get("recent_warnings", [])),  # older states: none yet
         )
 
 
 class Decider:
-    """Turns judged windows into SUSPECTED, CONFIRMED and CLEARED events."""
+    """Turns judged windows into SUSPECTED, CONFIRMED and CLEARED events.
 
-    def __init__(self, settings: DecisionSettings, config_hash: str, state: DecisionState | None = None) -> None:
+    geometry: the sensors' corners (the coupling vector of a window that comes without its
+    features); hop_s: the time between windows (the trend's weight per judged window).
+    """
+
+    def __init__(
+        self, settings: DecisionSettings, config_hash: str, state: DecisionState | None = None, *, geometry: BogieGeometry, hop_s: float
+    ) -> None:
         self.settings = settings
         self.config_hash = config_hash
+        self.geometry = geometry
+        self.hop_s = hop_s
         self.state = state or DecisionState()
         # A reload may shrink n: keep only what still fits.
         self.state.recent_alarms = deque(self.state.recent_alarms, maxlen=settings.confirm_n)
         self.state.recent_shifts = deque(self.state.recent_shifts, maxlen=settings.confirm_n)
         self.state.recent_warnings = deque(self.state.recent_warnings, maxlen=settings.confirm_n)
 
-    def judge(self, window: WindowIndicators, load: str) -> Judgement:
-        fused = self.settings.fused
-        baseline = fused.baselines.get(load) if fused is not None else None
-        x = coupling_features(window, fused.geometry) if fused is not None else None
-        shift = None if baseline is None or x is None else tuple(float(v) for v in baseline.whiten(x))
+    def judge(self, window: WindowIndicators, load: LoadState, features: WindowFeatures | None = None) -> Judgement:
+        """The window's values and levels in a load state (without the trend); features: the
+        window's, if already at hand."""
+        baseline = self.settings.baselines.get(load)
+        x = None
+        if baseline is not None and window.spectra is not None:
+            x = finite_or_none((features or WindowFeatures(window.spectra, self.geometry)).coupling)
+        shift = None if baseline is None or x is None else baseline.whiten(x)
         name = None if baseline is None else baseline.name
-        if self.settings.method == "fused":
+        if self.settings.method is Method.FUSED:
             if baseline is None:
                 raise KeyError(f"no fused baseline for load state '{load}'")
+            limits = self._limits(load)
             if shift is None:  # no spectra, or a mode without power: nothing to judge by
-                return Judgement({FUSED_SCORE: math.nan}, {FUSED_SCORE: Level.OK}, None, name)
-            score = float(np.dot(shift, shift))
+                return Judgement({FUSED_SCORE: math.nan}, {FUSED_SCORE: Level.OK}, limits, None, name)
+            score = float(shift @ shift)
             level = Level.of(score, baseline.warning, baseline.alarm)
-            return Judgement({FUSED_SCORE: score}, {FUSED_SCORE: level}, shift, name, score / baseline.alarm)
+            return Judgement({FUSED_SCORE: score}, {FUSED_SCORE: level}, limits, shift, name, score / baseline.alarm)
         thresholds = self.settings.thresholds.get(load)
         if thresholds is None:
             raise KeyError(f"no thresholds for load state '{load}'")
+        limits = self._limits(load)
         values = {n: float(getattr(window, n)) for n in thresholds}
         levels = {n: thresholds[n].level(v) if math.isfinite(v) else Level.OK for n, v in values.items()}
         ratios = [abs(v - thresholds[n].center) / thresholds[n].alarm for n, v in values.items() if math.isfinite(v)]
-        return Judgement(values, levels, shift, name, max(ratios, default=math.nan))
+        return Judgement(values, levels, limits, shift, name, max(ratios, default=math.nan))
 
-    def update(self, window: WindowIndicators, load: str, context: Mapping[str, Any] | None = None) -> tuple[Judgement, list[Event]]:
+    def update(
+        self, window: WindowIndicators, load: LoadState, context: Mapping[str, Any] | None = None, features: WindowFeatures | None = None
+    ) -> tuple[Judgement, list[Event]]:
         """Advance the state machine with one judgeable window; return its judgement and events.
 
         context: more details for the events (e.g. how the load state was decided).
         """
-        judgement = self._with_trend(self.judge(window, load), load)
+        judgement = self._with_trend(self.judge(window, load, features), load)
         s, cfg = self.state, self.settings
         alarm = judgement.worst >= Level.ALARM
         s.recent_alarms.append(alarm)
-        s.recent_shifts.append(list(judgement.shift) if alarm and judgement.shift is not None else None)
+        s.recent_shifts.append(judgement.shift if alarm else None)
         s.recent_warnings.append(judgement.worst >= Level.WARNING)
         warned = judgement.worst >= Level.WARNING or judgement.trend_level >= Level.WARNING
         suspected = confirms(s.recent_warnings, suspicion_k(cfg.confirm_k)) or judgement.trend_level >= Level.WARNING
         s.clean_streak = 0 if warned else s.clean_streak + 1
         events: list[Event] = []
         details = {
-            "load": load, **(context or {}), "method": cfg.method, "window_start_s": window.start_s, "window_end_s": window.end_s,
-            "thresholds": self._limits(load),
+            "load": load.value, **(context or {}), "method": cfg.method.value, "window_start_s": window.start_s, "window_end_s": window.end_s,
+            "thresholds": {n: {"center": t.center, "warning": t.warning, "alarm": t.alarm} for n, t in judgement.limits.items()},
         }  # fmt: skip
         if judgement.baseline is not None:
             details["baseline"] = judgement.baseline
@@ -266,49 +275,44 @@ class Decider:
             events.append(self._event(window, EventKind.CLEARED, judgement.values, {**details, "cleared": previous.value}))
         return judgement, events
 
-    def _with_trend(self, judgement: Judgement, load: str) -> Judgement:
+    def _with_trend(self, judgement: Judgement, load: LoadState) -> Judgement:
         """Advance the load state's trend with the window's shift; the judgement with the trend."""
-        fused = self.settings.fused
-        if self.settings.method != "fused" or fused is None or load not in fused.baselines:
+        baseline = self.settings.baselines.get(load)
+        if self.settings.method is not Method.FUSED or baseline is None:
             return judgement
-        baseline = fused.baselines[load]
         s = self.state
-        if s.trend_baseline.get(load) != baseline.fingerprint or len(s.trend_mean.get(load, ())) != baseline.center.size:
-            s.trend_mean[load] = [0.0] * baseline.center.size  # a new baseline: healthy until shown otherwise
+        mean = s.trend_mean.get(load)
+        if s.trend_baseline.get(load) != baseline.fingerprint or mean is None or mean.size != baseline.center.size:
+            mean = np.zeros(baseline.center.size)  # a new baseline: healthy until shown otherwise
             s.trend_baseline[load] = baseline.fingerprint
-        mean = np.asarray(s.trend_mean[load])
         if judgement.shift is not None:
-            mean = mean + fused.trend_weight(load) * (np.asarray(judgement.shift) - mean)
-            s.trend_mean[load] = [float(v) for v in mean]
+            mean = mean + trend_weight(self.hop_s, baseline.trend_tau_s) * (judgement.shift - mean)
+        s.trend_mean[load] = mean
         trend = float(mean @ mean)
         level = Level.of(trend, baseline.levels.trend_warning, baseline.levels.trend_alarm)
         return dataclasses.replace(judgement, trend=trend, trend_level=level)
 
-    def diagnosis(self, load: str) -> Diagnosis:
+    def diagnosis(self, load: LoadState) -> Diagnosis:
         """The diagnosis from the alarm windows of the current history (NO_EVIDENCE without them)."""
-        fused = self.settings.fused
+        baseline = self.settings.baselines.get(load)
         shifts = [v for v in self.state.recent_shifts if v is not None]
-        if fused is None or load not in fused.baselines or not shifts:
+        if baseline is None or not shifts:
             return NO_EVIDENCE
-        return diagnose(shifts, fused.baselines[load], load)
+        return diagnose(shifts, baseline, load)
 
-    def trend_diagnosis(self, load: str) -> Diagnosis:
+    def trend_diagnosis(self, load: LoadState) -> Diagnosis:
         """The diagnosis from the trend's mean shift: many windows' evidence in one vector."""
-        fused = self.settings.fused
+        baseline = self.settings.baselines.get(load)
         mean = self.state.trend_mean.get(load)
-        if fused is None or load not in fused.baselines or not mean:
+        if baseline is None or mean is None:
             return NO_EVIDENCE
-        return diagnose([mean], fused.baselines[load], load, trend=True)
+        return diagnose([mean], baseline, load, trend=True)
 
-    def _limits(self, load: str) -> dict[str, dict[str, float]]:
-        if self.settings.method == "fused":
-            assert self.settings.fused is not None
-            lv = self.settings.fused.baselines[load].levels
-            return {
-                FUSED_SCORE: {"center": 0.0, "warning": lv.warning, "alarm": lv.alarm},
-                FUSED_TREND: {"center": 0.0, "warning": lv.trend_warning, "alarm": lv.trend_alarm},
-            }
-        return {n: {"center": t.center, "warning": t.warning, "alarm": t.alarm} for n, t in self.settings.thresholds[load].items()}
+    def _limits(self, load: LoadState) -> dict[str, Threshold]:
+        if self.settings.method is Method.FUSED:
+            lv = self.settings.baselines[load].levels
+            return {FUSED_SCORE: Threshold(lv.warning, lv.alarm), FUSED_TREND: Threshold(lv.trend_warning, lv.trend_alarm)}
+        return dict(self.settings.thresholds[load])
 
     def _event(self, window: WindowIndicators, kind: EventKind, fired: Mapping[str, float], details: Mapping[str, Any]) -> Event:
         return Event(

@@ -9,6 +9,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 
+# The paper's indicators as the events, the thresholds and the status name them (detection's
+# WindowIndicators fields of the same names).
+INDICATOR_FIELDS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
+
+
 class EventKind(enum.Enum):
     SUSPECTED = "SUSPECTED"  # k - 1 of the last n judged windows (or the trend) at a warning level
     CONFIRMED = "CONFIRMED"  # k of the last n judged windows crossed an alarm level: the alarm
@@ -18,15 +23,17 @@ class EventKind(enum.Enum):
 
 
 class Severity(enum.Enum):
-    """How urgent an event is; the syslog priority decides what `journalctl -p` shows."""
+    """How urgent an event is; the log level it is logged at decides its syslog priority (the one
+    table of them is daemon/logs.py's), so what `journalctl -p` shows."""
 
     INFO = "info"
     WARNING = "warning"
     ALARM = "alarm"
 
     @property
-    def syslog_priority(self) -> int:
-        return {Severity.INFO: 6, Severity.WARNING: 4, Severity.ALARM: 2}[self]
+    def log_level(self) -> str:
+        """The structlog method an event of this severity is logged with: an alarm at crit."""
+        return "critical" if self is Severity.ALARM else self.value
 
 
 DEFAULT_SEVERITY = {

@@ -1,20 +1,11 @@
-"""Sensor health and gating: decide whether a window may be judged at all, and why not.
+"""Sensor health: decide whether a window's sensors can be trusted, and name what is wrong.
 
 A stuck or dead channel creates exactly the asymmetry the indicators look for, so every window
 is checked here first. A window is judged only when the wagon runs steadily with enough
-excitation and every sensor looks healthy; otherwise it is gated (standstill, a stop or start
-inside it, weak excitation) or the sensors are at fault (a SENSOR_FAULT, never a suspension alarm).
-
-THE GATES. Standstill: every channel quiet. Non-stationary: the window holds a hop near
-standstill, or its quietest hop's RMS is below min_hop_rms_ratio of its loudest (the median
-channel's per-hop RMS, detection/channel_stats.py). A running frame's RMS grows with speed as
-about v^a, a = 1.2 to 2 on both simulated wagon models (lab/robust/health_check.py prints it), so
-a ratio of 0.25 between two hops of one window is a speed change by a factor 0.25^(-1/a) = 2 to
-3.2 within two minutes: braking to a stop, standing, or starting. Running hops differ far less:
-the ratio stayed above 0.34 on every window of the simulated fleets, whose speed drifts within
-50-110 km/h, and above 0.6 at a steady 10-30 km/h. The couplings of such a
-window mix running with standing, and the dry-friction dampers stick at low speed: not judged.
-Weak excitation: moving, but the median channel's RMS is too small to judge the suspension.
+excitation (daemon/gating.py) and every sensor looks healthy; otherwise it is gated or the sensors
+are at fault (a SENSOR_FAULT, never a suspension alarm). The sensors' structure (an inverted or
+swapped sensor, daemon/structure.py) and noise floor (daemon/noise_floor.py) are learned from the
+wagon at commissioning; the tracker across windows is daemon/sensor_tracker.py.
 
 THE SENSORS, by physics alone (any wagon, commissioned or not): the sensor's own fault bits,
 flat, stuck, clipping, gross noise (a channel's RMS over the others', or beyond what a frame gives),
@@ -47,6 +38,7 @@ about -9.81 while another reads +9.81 is upside down), and white noise seen in t
   (noise_low_band_ratio: a prior from the simulated fleet, at most 2.7 there, see [health]).
   Its noise enters bounce and roll alike, a coupling of its own: the noise floor below closes it.
 
+
 THE NOISE FLOOR, learned from the wagon. A sensor's own white noise (a failing element, a poor cable
 screen, a loose mounting) of density n adds exactly n x the band's width, in every band, to the part
 of its channel the other two channels cannot explain (1 / (S^-1)_cc of the band's cross-spectral
@@ -66,37 +58,21 @@ healthy running on other tracks and speeds stays within the commissioning's rati
 it is not in force. A frame whose own vibration fills every band up to Nyquist hides the noise: the
 check then says nothing (never a false fault), and the coherence checks above remain.
 
-THE STRUCTURE, learned from the wagon. A sensor mounted upside down or two cables swapped give
-healthy-looking channels whose bounce, pitch and roll are wrong, and strong couplings: fault-like.
-The rigid frame's structure in the band cross-spectra (detection/features.py: layout_statistics)
-tells them apart: "low", at 0.5-2 Hz each channel correlates positively with another (an inverted
-one negatively); "diagonal", at 16-64 Hz the two diagonal corners move in opposition; "other",
-the other pairs less so; "quadrature", at 0.5-4 Hz bounce and pitch are in quadrature (the rear
-axle meets the track 2l/v after the front one), bounce and roll much less. Which of these hold, and
-how clearly, depends on the wagon: commissioning learns them (learn_structure, on the wagon's
-healthy windows) and writes the checks in force and their thresholds under [health]. An
-uncommissioned wagon has none in force: no structure-based fault. With checks in force, a layout
-that fails one while another assignment of the channels to the corners (with or without sign
-flips) passes all of them names the channels it moves "swapped" and those it flips "inverted".
 """
 
 from __future__ import annotations
 
-import dataclasses
 import enum
-import itertools
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.daemon.gating import Gate, window_gate
 from bogiemon.daemon.noise_floor import floor_noisy_channels
+from bogiemon.daemon.structure import LAYOUT_CHECKS, layout_fit
 from bogiemon.detection import BogieGeometry, WindowIndicators
-from bogiemon.detection.features import LayoutStatistics, layout_statistics
-from bogiemon.drivers.base import SensorStatus
+from bogiemon.drivers.base import ALL_OK, SensorStatus
 
 CHANNELS = ("a1", "a2", "a3")
 
@@ -113,15 +89,6 @@ class SensorProblem(enum.Enum):
     SWAPPED = "swapped"  # its signal belongs to another corner than the config names
 
 
-class Gate(enum.Enum):
-    STANDSTILL = "standstill"  # every channel quiet: the wagon stands
-    # The excitation changes too much within the window: a stop, a start or a standstill inside it.
-    NON_STATIONARY = "non_stationary"
-    WEAK_EXCITATION = "weak_excitation"  # moving, but too little excitation to judge
-
-
-# The structure checks of layout_margin, by the names the config uses.
-LAYOUT_CHECKS: tuple[str, ...] = ("low", "diagonal", "other", "quadrature")
 # The coherence noise check (module docstring): its band, 0.5-1 Hz (detection.spectra.BANDS_HZ);
 # the largest phase of the same-rail pair's cross-spectrum there for which it applies (waves at
 # least 8 wheelbases long); and the share of the noisy sensor's unexplained power its excess
@@ -188,159 +155,6 @@ class WindowHealth:
     @property
     def judgeable(self) -> bool:
         return self.gate is None and self.sensors_ok
-
-
-# --------------------------------------------------------------------------------------------
-# The layout: the rigid frame's structure, checked with what commissioning learned
-
-
-def layout_check_values(stats: LayoutStatistics) -> dict[str, float]:
-    """Each check's statistic, signed so that the configured layout of a healthy frame gives it large."""
-    return {
-        "low": min(stats.low_coherence),
-        "diagonal": -stats.diagonal_coherence,
-        "other": stats.other_coherence - stats.diagonal_coherence,
-        "quadrature": stats.quadrature_bp - stats.quadrature_br,
-    }
-
-
-def layout_thresholds(settings: HealthSettings) -> dict[str, float]:
-    """Each check's threshold on layout_check_values' scale (it passes above it)."""
-    return {
-        "low": settings.layout_low_coherence,
-        "diagonal": -settings.layout_diagonal_coherence,
-        "other": settings.layout_other_margin,
-        "quadrature": settings.layout_quadrature_margin,
-    }
-
-
-def layout_margin(stats: LayoutStatistics, settings: HealthSettings) -> float:
-    """How clearly one assignment of the channels passes the checks in force (< 0: it fails one;
-    +inf when none is in force)."""
-    values, thresholds = layout_check_values(stats), layout_thresholds(settings)
-    return min((values[c] - thresholds[c] for c in settings.layout_checks), default=float("inf"))
-
-
-# Every assignment of the three channels to the configured corners, with signs; a sign flip of all
-# three is the same structure, so the first channel keeps its sign (gravity tells that one apart).
-_HYPOTHESES = tuple(
-    (perm, signs) for perm in itertools.permutations(range(3)) for signs in itertools.product((1.0, -1.0), repeat=3) if signs[0] > 0
-)
-_TIE = 1e-9  # margins this close are one: the checks in force cannot tell those hypotheses apart
-
-
-def _changes(perm: tuple[int, ...], signs: tuple[float, ...]) -> int:
-    return sum(p != i for i, p in enumerate(perm)) + min(sum(s < 0 for s in signs), sum(s > 0 for s in signs))
-
-
-def layout_problems(window: WindowIndicators, geometry: BogieGeometry, settings: HealthSettings) -> dict[str, list[SensorProblem]]:
-    """Channels whose data do not fit the configured corners: {"a2": [SWAPPED], ...}; {} when they fit.
-
-    Only the checks in force (settings.layout_checks) count: none, no layout problems. Reported
-    only when the configured layout fails one and another assignment passes all; of assignments
-    the checks cannot tell apart, the one that changes the fewest channels.
-    """
-    if not settings.layout_checks:
-        return {}
-    assert window.spectra is not None
-    matrix = window.spectra.matrix()
-    if layout_margin(layout_statistics(matrix, geometry), settings) >= 0:
-        return {}
-    passing = []
-    for perm, signs in _HYPOTHESES:
-        if perm == (0, 1, 2) and signs == (1.0, 1.0, 1.0):
-            continue
-        margin = layout_margin(layout_statistics(matrix, geometry, perm, signs), settings)
-        if margin > 0:
-            passing.append((margin, perm, signs))
-    if not passing:
-        return {}
-    best_margin = max(m for m, _, _ in passing)
-    _, perm, signs = min((p for p in passing if p[0] >= best_margin - _TIE), key=lambda p: _changes(p[1], p[2]))
-    if sum(s < 0 for s in signs) > 1:  # the same structure with every sign flipped: fewer inverted
-        signs = tuple(-s for s in signs)
-    out: dict[str, list[SensorProblem]] = {}
-    for corner_index, (channel, sign) in enumerate(zip(perm, signs, strict=True)):
-        if channel != corner_index:
-            out.setdefault(CHANNELS[channel], []).append(SensorProblem.SWAPPED)
-        if sign < 0:
-            out.setdefault(CHANNELS[channel], []).append(SensorProblem.INVERTED)
-    return out
-
-
-# What commissioning needs to put a check in force: its statistic at least this on every healthy
-# window (coherencies and their differences: 0.2 is far outside an estimate's scatter over a
-# 120 s window, and a sign flip or a swap moves the statistic by about twice its healthy value).
-MIN_STRUCTURE_MARGIN = 0.2
-
-
-@dataclass(frozen=True)
-class StructureFit:
-    """The frame structure a wagon's healthy windows showed: the checks that hold, with thresholds.
-
-    smallest[c] is the smallest value of check c's statistic (layout_check_values) over the
-    windows; a check holds when that is at least MIN_STRUCTURE_MARGIN, and its threshold is half
-    of it: a swap or a sign flip takes the statistic to about minus its healthy value, while a
-    healthy window later, on other tracks and speeds, keeps half the margin the commissioning saw.
-    """
-
-    checks: tuple[str, ...]  # in force, in LAYOUT_CHECKS order
-    thresholds: dict[str, float]  # check -> threshold on layout_check_values' scale, for those in force
-    smallest: dict[str, float]  # check -> its smallest value over the windows (every check)
-    windows: int
-
-    def health_fields(self) -> dict[str, Any]:
-        """The [health] fields that put this structure in force (for the calibration fragment)."""
-        out: dict[str, Any] = {"layout_checks": list(self.checks)}
-        for check, threshold in self.thresholds.items():
-            name, value = _THRESHOLD_FIELDS[check]
-            out[name] = round(value(threshold), 4)
-        return out
-
-    def applied_to(self, settings: HealthSettings) -> HealthSettings:
-        """The settings with this structure in force, as its health_fields in the config give them."""
-        fields = self.health_fields()
-        return dataclasses.replace(settings, **{**fields, "layout_checks": tuple(fields["layout_checks"])})
-
-
-# Check -> (its HealthSettings field, from the threshold on layout_check_values' scale to the field's).
-_THRESHOLD_FIELDS = {
-    "low": ("layout_low_coherence", lambda t: t),
-    "diagonal": ("layout_diagonal_coherence", lambda t: -t),
-    "other": ("layout_other_margin", lambda t: t),
-    "quadrature": ("layout_quadrature_margin", lambda t: t),
-}
-
-
-def structure_of(smallest: dict[str, float], windows: int) -> StructureFit:
-    """The checks in force, and their thresholds, given each check's smallest healthy value."""
-    checks = tuple(c for c in LAYOUT_CHECKS if windows and smallest[c] >= MIN_STRUCTURE_MARGIN)
-    return StructureFit(checks=checks, thresholds={c: smallest[c] / 2 for c in checks}, smallest=smallest, windows=windows)
-
-
-def merge_structures(fits: Sequence[StructureFit]) -> StructureFit:
-    """One structure from the fits of several commissioning sets (each load state's): exactly what
-    learn_structure gives on their windows together (a check holds only if it holds in all)."""
-    fits = [f for f in fits if f.windows]
-    smallest = {c: min((f.smallest[c] for f in fits), default=float("nan")) for c in LAYOUT_CHECKS}
-    return structure_of(smallest, sum(f.windows for f in fits))
-
-
-def learn_structure(windows: Iterable[WindowIndicators], geometry: BogieGeometry) -> StructureFit:
-    """The structure checks that hold on a wagon's healthy windows, and their thresholds.
-
-    Give it the judgeable windows of the commissioning runs (healthy wagon, sensors as
-    configured); windows without spectra are skipped. No windows: no check in force.
-    """
-    values: dict[str, list[float]] = {c: [] for c in LAYOUT_CHECKS}
-    n = 0
-    for window in windows:
-        if window.spectra is None:
-            continue
-        n += 1
-        for check, value in layout_check_values(layout_statistics(window.spectra.matrix(), geometry)).items():
-            values[check].append(value)
-    return structure_of({c: float(np.min(v)) if v else float("nan") for c, v in values.items()}, n)
 
 
 # --------------------------------------------------------------------------------------------
@@ -413,25 +227,10 @@ def coherence_noisy_channel(matrix: NDArray[np.complex128], geometry: BogieGeome
 # The verdict
 
 
-def window_gate(window: WindowIndicators, settings: HealthSettings) -> Gate | None:
-    """Why the window cannot be judged whatever the sensors (None: it can)."""
-    rms = np.asarray(window.rms_mps2)
-    if np.all(rms < settings.standstill_rms_mps2):
-        return Gate.STANDSTILL
-    # The median channel: one faulty sensor (noisy, dead) moves neither of them.
-    hop_min = float(np.median(window.channels.hop_rms_min_mps2))
-    hop_max = float(np.median(window.channels.hop_rms_max_mps2))
-    if hop_min < settings.standstill_rms_mps2 or hop_min < settings.min_hop_rms_ratio * hop_max:  # NaN (not measured): neither
-        return Gate.NON_STATIONARY
-    if float(np.median(rms)) < settings.min_excitation_rms_mps2:
-        return Gate.WEAK_EXCITATION
-    return None
-
-
 def assess_window(
     window: WindowIndicators,
     settings: HealthSettings,
-    status: tuple[SensorStatus, SensorStatus, SensorStatus] = (SensorStatus.OK,) * 3,
+    status: tuple[SensorStatus, SensorStatus, SensorStatus] = ALL_OK,
     gaps_last_hour: int = 0,
     geometry: BogieGeometry | None = None,
 ) -> WindowHealth:
@@ -479,10 +278,13 @@ def assess_window(
     # The frame's structure needs a steadily moving wagon; a channel already at fault would mislead
     # it. A layout that does not fit explains a broken coherence too, so it is looked at first.
     if gate is None and not problems and settings.structure_checks and geometry is not None and window.spectra is not None:
-        for name, found in layout_problems(window, geometry, settings).items():
-            for problem in found:
-                flag(name, problem)
-        noisy = None if problems else coherence_noisy_channel(window.spectra.matrix(), geometry, settings)
+        fit = layout_fit(window.spectra.matrix, geometry, settings)
+        if fit is not None:
+            for channel in fit.moved():
+                flag(CHANNELS[channel], SensorProblem.SWAPPED)
+            for channel in fit.flipped():
+                flag(CHANNELS[channel], SensorProblem.INVERTED)
+        noisy = None if problems else coherence_noisy_channel(window.spectra.matrix, geometry, settings)
         if noisy is not None:
             flag(CHANNELS[noisy], SensorProblem.NOISY)
     # The noise floor needs no structure, only the commissioning's floors: any moving window whose
@@ -491,61 +293,3 @@ def assess_window(
         for c in floor_noisy_channels(window, settings):
             flag(CHANNELS[c], SensorProblem.NOISY)
     return WindowHealth(gate=gate, problems={k: tuple(v) for k, v in problems.items()})
-
-
-@dataclass
-class HealthState:
-    reported: dict[str, list[str]]  # the problems of the last SENSOR_FAULT, empty when healthy
-    clean_windows: int = 0
-
-    def as_dict(self) -> dict[str, object]:
-        return {"reported": self.reported, "clean_windows": self.clean_windows}
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any] | None) -> HealthState:
-        if not data:
-            return cls(reported={})
-        return cls(reported={k: list(v) for k, v in data["reported"].items()}, clean_windows=int(data["clean_windows"]))
-
-
-class HealthTracker:
-    """Turns per-window health verdicts into SENSOR_FAULT and SENSOR_CLEARED events.
-
-    A fault is reported when a problem appears that is not reported yet (a channel, or a new
-    problem on one); while it lasts the reported set only grows, so a problem that comes and
-    goes from window to window (a dead channel seen as flat, then flat and stuck) is one event,
-    not one per change. It clears after clear_after_windows consecutive windows without problems
-    that were not gated: at standstill a flat or stuck channel cannot be told from a quiet one,
-    and the coherence and layout checks run only on windows of steady, excited running.
-    """
-
-    def __init__(self, config_hash: str, clear_after_windows: int = 3, state: HealthState | None = None) -> None:
-        self.config_hash = config_hash
-        self.clear_after_windows = clear_after_windows
-        self.state = state or HealthState(reported={})
-
-    @property
-    def faulted(self) -> bool:
-        """A SENSOR_FAULT is reported and not yet cleared."""
-        return bool(self.state.reported)
-
-    def update(self, window: WindowIndicators, health: WindowHealth) -> list[Event]:
-        s = self.state
-        current = {ch: sorted(p.value for p in problems) for ch, problems in health.problems.items()}
-        details = {"window_start_s": window.start_s, "window_end_s": window.end_s, "rms_mps2": list(window.rms_mps2)}
-        if current:
-            s.clean_windows = 0
-            grown = {ch: sorted(set(s.reported.get(ch, [])) | set(ps)) for ch, ps in {**s.reported, **current}.items()}
-            if grown != s.reported:
-                s.reported = grown
-                return [self._event(window, EventKind.SENSOR_FAULT, {**details, "problems": current, "reported": grown})]
-            return []
-        if s.reported and health.gate is None:
-            s.clean_windows += 1
-            if s.clean_windows >= self.clear_after_windows:
-                previous, s.reported, s.clean_windows = s.reported, {}, 0
-                return [self._event(window, EventKind.SENSOR_CLEARED, {**details, "cleared": previous})]
-        return []
-
-    def _event(self, window: WindowIndicators, kind: EventKind, details: dict[str, object]) -> Event:
-        return Event(time_s=window.end_s, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash=self.config_hash, details=details)

@@ -13,6 +13,7 @@ from typing import Any, TextIO
 
 import structlog
 
+# The one table of syslog priorities (an event's severity names its level: daemon/events.py).
 _PRIORITY = {"debug": 7, "info": 6, "warning": 4, "error": 3, "critical": 2}
 
 

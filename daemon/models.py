@@ -28,7 +28,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
-from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, coupling_vector, load_vector
+from bogiemon.daemon.vocabulary import LoadState
+from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, WindowFeatures
 
 LOAD_MODEL_FILE = "load_model.toml"
 FUSED_MODEL_FILE = "fused_model.toml"
@@ -62,7 +63,11 @@ class LoadModel:
         """P(full) of one window; NaN when the window has no spectra or a mode no power."""
         if window.spectra is None:
             return math.nan
-        x = load_vector(window.spectra, geometry)[[LOAD_NAMES.index(f) for f in self.features]]
+        return self.probability_of(WindowFeatures(window.spectra, geometry).load)
+
+    def probability_of(self, load_vector: NDArray[np.float64]) -> float:
+        """P(full) of a window's load vector (LOAD_NAMES; NaN where a mode had no power)."""
+        x = load_vector[[LOAD_NAMES.index(f) for f in self.features]]
         z = self.bias + float(np.dot(self.weights, (x - np.asarray(self.mean)) / np.asarray(self.scale)))
         if not math.isfinite(z):
             return math.nan
@@ -79,7 +84,7 @@ class LoadSignature:
     than the commissioning slides the dampers more, towards the linear regime, and a fault itself
     may raise the frame's excitation."""
 
-    load: str
+    load: LoadState
     center: NDArray[np.float64]
     scale: NDArray[np.float64]
     limit: float
@@ -89,9 +94,10 @@ class LoadSignature:
         z = (x - self.center) / self.scale
         return float(np.sqrt(np.mean(z * z)))
 
-    def familiar_excitation(self, window: WindowIndicators) -> bool:
-        """Whether the window is excited at least as much as the gentlest commissioning window."""
-        return excitation_of(window) >= self.lowest_excitation_mps2
+    def familiar_excitation(self, excitation_mps2: float) -> bool:
+        """Whether a window of this excitation (excitation_of) is excited at least as much as the
+        gentlest commissioning window."""
+        return excitation_mps2 >= self.lowest_excitation_mps2
 
 
 def excitation_of(window: WindowIndicators) -> float:
@@ -104,8 +110,7 @@ def load_features(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[
     """The load vector of a window (LOAD_NAMES); None when it has no spectra or a mode no power."""
     if window.spectra is None:
         return None
-    x = load_vector(window.spectra, geometry)
-    return x if bool(np.all(np.isfinite(x))) else None
+    return finite_or_none(WindowFeatures(window.spectra, geometry).load)
 
 
 @dataclass(frozen=True)
@@ -122,34 +127,34 @@ class LoadDiscriminant:
     def value(self, x: NDArray[np.float64]) -> float:
         return float(np.dot(self.weights, x) + self.offset)
 
-    def load_of(self, x: NDArray[np.float64]) -> str | None:
+    def load_of(self, x: NDArray[np.float64]) -> LoadState | None:
         v = self.value(x)
-        return "full" if v >= self.margin else "tare" if v <= -self.margin else None
+        return LoadState.FULL if v >= self.margin else LoadState.TARE if v <= -self.margin else None
 
 
 def nearest_load(
-    window: WindowIndicators, geometry: BogieGeometry, states: Sequence[LoadSignature], discriminant: LoadDiscriminant | None = None
-) -> tuple[str | None, float]:
-    """(the commissioned load state of the window, its distance to that state); (None, distance)
-    when it is farther than that state's limit, excited more gently than that state's
-    commissioning, between the states (the discriminant's margin), or has no load vector (distance
-    NaN). With a discriminant the state is its side of it (within its margin: the nearest state, if
-    on that side); without, the nearest state."""
-    x = load_features(window, geometry)
+    x: NDArray[np.float64] | None, excitation_mps2: float, states: Sequence[LoadSignature], discriminant: LoadDiscriminant | None = None
+) -> tuple[LoadState | None, float]:
+    """(the commissioned load state of a window of load vector x (load_features) and excitation
+    (excitation_of), its distance to that state); (None, distance) when it is farther than that
+    state's limit, excited more gently than that state's commissioning, between the states (the
+    discriminant's margin), or has no load vector (x None: distance NaN). With a discriminant the
+    state is its side of it (within its margin: the nearest state, if on that side); without, the
+    nearest state."""
     if x is None or not states:
         return None, math.nan
-    distance, state = min((s.distance(x), s) for s in states)
-    if discriminant is not None and {s.load for s in states} == {"full", "tare"}:
+    distance, state = min(((s.distance(x), s) for s in states), key=lambda pair: pair[0])
+    if discriminant is not None and {s.load for s in states} == set(LoadState):
         load = discriminant.load_of(x)
         if load is None:
             # Within the margin: judged only where the nearest state is on the same side of the
             # line (the two rules agree), else between the states.
-            side = "full" if discriminant.value(x) >= 0 else "tare"
-            familiar = state.load == side and distance <= state.limit and state.familiar_excitation(window)
+            side = LoadState.FULL if discriminant.value(x) >= 0 else LoadState.TARE
+            familiar = state.load == side and distance <= state.limit and state.familiar_excitation(excitation_mps2)
             return (state.load if familiar else None), distance
         state = next(s for s in states if s.load == load)
         distance = state.distance(x)
-    return (state.load if distance <= state.limit and state.familiar_excitation(window) else None), distance
+    return (state.load if distance <= state.limit and state.familiar_excitation(excitation_mps2) else None), distance
 
 
 # --------------------------------------------------------------------------------------------
@@ -213,7 +218,7 @@ class FusedModel:
     couplings around its own center (covariance, levels) and the fleet's baseline for a wagon
     without calibration (population center, covariance, levels)."""
 
-    load: str
+    load: LoadState
     features: tuple[str, ...]
     window_s: float  # the processing windows it was fitted on: the spread depends on them
     hop_s: float
@@ -238,12 +243,16 @@ class FusedModel:
         return Baseline("calibrated", np.asarray(center, dtype=np.float64), whitening_of(spread), levels, self.trend_tau_s)
 
 
+def finite_or_none(x: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """x, or None when an entry is not finite (a mode without power in a band): nothing to judge by."""
+    return x if bool(np.all(np.isfinite(x))) else None
+
+
 def coupling_features(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[np.float64] | None:
     """The coupling vector of a window; None when it has no spectra or a mode had no power."""
     if window.spectra is None:
         return None
-    x = coupling_vector(window.spectra, geometry)
-    return x if bool(np.all(np.isfinite(x))) else None
+    return finite_or_none(WindowFeatures(window.spectra, geometry).coupling)
 
 
 # --------------------------------------------------------------------------------------------
@@ -295,7 +304,7 @@ def parse_load_model(data: Mapping[str, Any], where: str = LOAD_MODEL_FILE) -> L
         raise ModelError(f"{where}: {exc}") from None
 
 
-def parse_fused_model(data: Mapping[str, Any], load: str, where: str = FUSED_MODEL_FILE) -> FusedModel:
+def parse_fused_model(data: Mapping[str, Any], load: LoadState, where: str = FUSED_MODEL_FILE) -> FusedModel:
     section = data.get(load)
     if not isinstance(section, Mapping):
         raise ModelError(f"{where}: no [{load}] table")
@@ -328,7 +337,7 @@ def parse_fused_model(data: Mapping[str, Any], load: str, where: str = FUSED_MOD
 @dataclass(frozen=True)
 class ShippedModels:
     load: LoadModel
-    fused: Mapping[str, FusedModel]
+    fused: Mapping[LoadState, FusedModel]
 
 
 @functools.cache
@@ -337,4 +346,4 @@ def shipped_models(directory: str = "") -> ShippedModels:
     refitted on another fleet); read once per process and folder."""
     load = parse_load_model(_read(LOAD_MODEL_FILE, directory))
     fused_data = _read(FUSED_MODEL_FILE, directory)
-    return ShippedModels(load=load, fused={ld: parse_fused_model(fused_data, ld) for ld in ("full", "tare")})
+    return ShippedModels(load=load, fused={ld: parse_fused_model(fused_data, ld) for ld in LoadState})

@@ -1,10 +1,10 @@
-"""The monitor: blocks in, events out. The same object serves `run` and `replay`.
+"""The monitor: blocks in, events out. The same object serves `run`, `replay` and `fleet judge`.
 
-Per block it restarts the windows at a gap and feeds the detection core; per window it checks the
-sensors and the gating, decides the load state (configured, or estimated from the window's
-spectral shape with `decision.load = "auto"`), advances the suspension decision, commits the
-resulting events (with the decision state) to the event store and only then reports them to the
-sinks. The per-window judgement without the store (WindowJudge) also serves the evaluation.
+Per block it restarts the windows at a gap or a new stream and feeds the detection core
+(daemon/windowing.py); per window (on_window, where `fleet judge` feeds a wagon's stored windows)
+it takes the window's verdict from WindowJudge (daemon/verdict.py: sensor health, gating, load
+state, the suspension decision), counts it, commits the resulting events (with the decision
+state) to the event log and only then reports them to the sinks and observers.
 
 When the store refuses a commit (a full disk, read-only or failing media), `replay` stops with the
 error (the recording can be replayed once the disk is fixed), while the service, whose live data
@@ -14,21 +14,20 @@ once committed, in order, and nothing is reported before; each failure is logged
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
-from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Judgement
+from bogiemon.daemon.decision import DecisionState
+from bogiemon.daemon.vocabulary import Mode
 from bogiemon.daemon.events import Event
-from bogiemon.daemon.health import HealthSettings, HealthState, HealthTracker, WindowHealth, assess_window
 from bogiemon.daemon.logs import get_logger
-from bogiemon.daemon.models import LoadDiscriminant, LoadModel, LoadSignature, nearest_load
+from bogiemon.daemon.sensor_tracker import HealthState
 from bogiemon.daemon.sinks import EventSink
-from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
-from bogiemon.daemon.windowing import BlockWindows
-from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
-from bogiemon.drivers.base import Block, SensorStatus
+from bogiemon.daemon.store_file import StoreError, StoreWriteError
+from bogiemon.daemon.verdict import MonitorSettings, Outcome, WindowJudge, WindowVerdict
+from bogiemon.daemon.windowing import BlockWindows, Windowed
+from bogiemon.drivers.base import Block
 
 STATE_KEY = "monitor"
 # Events held while the store refuses commits: days of a faulty wagon's events (they come at
@@ -37,48 +36,48 @@ STATE_KEY = "monitor"
 MAX_HELD_EVENTS = 1000
 
 
-@dataclass(frozen=True)
-class MonitorSettings:
-    processing: ProcessingSettings
-    geometry: BogieGeometry
-    health: HealthSettings
-    decision: DecisionSettings
-    load: str  # "full", "tare" or "auto" (estimated per window by load_model)
-    config_hash: str
-    sensor_clear_after_windows: int = 3
-    load_model: LoadModel | None = None
-    # The load states the wagon was commissioned in: with them, load "auto" takes the nearest, and
-    # a window like none of them is not judged (never an alarm for being unfamiliar); with a fixed
-    # load, a window excited more gently than that state's commissioning is not judged either.
-    load_states: tuple[LoadSignature, ...] = ()
-    load_discriminant: LoadDiscriminant | None = None  # with both states: the wagon's own line between them
+class EventLog(Protocol):
+    """Where the monitor commits its events with its state: the service's SQLite EventStore
+    (daemon/store.py), or MemoryEventLog (the back office's judgement, tests)."""
 
-    def __post_init__(self) -> None:
-        if self.load == "auto" and self.load_model is None:
-            raise ValueError("load 'auto' needs the load model")
+    path: Any  # named in errors
+
+    def append(self, events: list[Event], state: dict[str, Any] | None = None) -> None: ...
+
+    def committed_ids(self, event_ids: Sequence[str]) -> set[str]: ...
+
+    def get_state(self, key: str) -> Any: ...
 
 
-@dataclass(frozen=True)
-class WindowReport:
-    """Everything the monitor concluded about one window (for status lines and live displays)."""
+class MemoryEventLog:
+    """An EventLog in memory: events numbered 1, 2, ... in commit order, as the store numbers them."""
 
-    window: WindowIndicators
-    health: WindowHealth
-    judgement: Judgement | None  # None when the window was not judged
-    mode: str
-    events: tuple[Event, ...]
-    load: str | None = None  # the load state the window was judged in
-    p_full: float | None = None  # the estimated probability of full load (load "auto")
-    unfamiliar: float | None = None  # not judged: its load vector's distance to every commissioned state is beyond the limit
+    path = "(memory)"
+
+    def __init__(self) -> None:
+        self.committed: list[tuple[int, Event]] = []  # (seq, event)
+        self.state: dict[str, Any] = {}
+
+    def append(self, events: list[Event], state: dict[str, Any] | None = None) -> None:
+        self.committed += [(len(self.committed) + 1 + i, e) for i, e in enumerate(events)]
+        self.state.update(state or {})
+
+    def committed_ids(self, event_ids: Sequence[str]) -> set[str]:
+        known = {e.event_id for _, e in self.committed}
+        return {i for i in event_ids if i in known}
+
+    def get_state(self, key: str) -> Any:
+        return self.state.get(key)
 
 
 @dataclass
 class MonitorCounters:
     blocks: int = 0
     samples: int = 0
-    segments: int = 0  # continuous stretches: the first block and every gap start one
-    # Every window is judged, gated (standstill, weak excitation) or held by the sensors (a problem
-    # in it, or a sensor fault not yet cleared): windows == judged + gated + sensor_fault_windows.
+    segments: int = 0  # continuous stretches: the first block and every gap or new stream start one
+    # Every window is judged, gated (standstill, weak excitation, or a load unlike the
+    # commissioning's) or held by the sensors (a problem in it, or a sensor fault not yet cleared):
+    # windows == judged + gated + sensor_fault_windows.
     windows: int = 0
     judged: int = 0
     gated: int = 0
@@ -86,78 +85,24 @@ class MonitorCounters:
     sensor_fault_windows: int = 0
     events: int = 0
 
-
-@dataclass(frozen=True)
-class JudgedWindow:
-    """What WindowJudge concluded about one window."""
-
-    health: WindowHealth
-    judgement: Judgement | None
-    events: list[Event]
-    load: str | None
-    p_full: float | None
-    # The distance of the window's load vector to the nearest commissioned load state, when it was
-    # farther than that state's limit or excited more gently than its commissioning: not judged.
-    unfamiliar: float | None = None
-
-
-class WindowJudge:
-    """Sensor health, gating, load state and the suspension decision for one window at a time.
-
-    Holds the decision and health state; no store, no sinks (Monitor adds those).
-    """
-
-    def __init__(self, settings: MonitorSettings, decision: DecisionState | None = None, health: HealthState | None = None) -> None:
-        self.settings = settings
-        self.decider = Decider(settings.decision, settings.config_hash, decision)
-        self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, health)
-
-    def reconfigure(self, settings: MonitorSettings) -> None:
-        self.settings = settings
-        self.decider = Decider(settings.decision, settings.config_hash, self.decider.state)
-        self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, self.health.state)
-
-    def judge(
-        self,
-        window: WindowIndicators,
-        status: tuple[SensorStatus, SensorStatus, SensorStatus] = (SensorStatus.OK,) * 3,
-        gaps_last_hour: int = 0,
-    ) -> JudgedWindow:
-        s = self.settings
-        health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
-        events = self.health.update(window, health)
-        # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
-        # window's checks (noise that the track's own excitation hides) and still couple the modes.
-        if not health.judgeable or self.health.faulted:
-            return JudgedWindow(health, None, events, None, None)
-        load, p_full, context = s.load, None, {"load_source": "configured"}
-        fixed = next((st for st in s.load_states if st.load == s.load), None)
-        if fixed is not None and not fixed.familiar_excitation(window):
-            # A configured load, commissioned: its excitation range holds as it does for "auto".
-            return JudgedWindow(health, None, events, None, None, unfamiliar=math.nan)
-        if s.load == "auto" and s.load_states:
-            nearest, distance = nearest_load(window, s.geometry, s.load_states, s.load_discriminant)
-            if nearest is None:
-                return JudgedWindow(health, None, events, None, None, unfamiliar=distance)
-            load, context = nearest, {"load_source": "commissioned", "load_distance": round(distance, 3)}
-        elif s.load == "auto":
-            assert s.load_model is not None
-            p_full = s.load_model.probability_full(window, s.geometry)
-            # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on
-            # the simulated fleets (docs/robust/README.md): no third state is needed.
-            load = "full" if p_full >= 0.5 else "tare"
-            context = {"load_source": "estimated", "p_full": round(p_full, 4)}
-        judgement, decided = self.decider.update(window, load, context)
-        return JudgedWindow(health, judgement, events + decided, load, p_full)
+    def count(self, outcome: Outcome) -> None:
+        self.windows += 1
+        if outcome is Outcome.JUDGED:
+            self.judged += 1
+        elif outcome is Outcome.SENSOR:
+            self.sensor_fault_windows += 1
+        else:
+            self.gated += 1
+            self.unfamiliar += outcome is Outcome.UNFAMILIAR
 
 
 class Monitor:
     def __init__(
         self,
         settings: MonitorSettings,
-        store: EventStore,
+        store: EventLog,
         sinks: Sequence[EventSink] = (),
-        observers: Sequence[Callable[[WindowReport], None]] = (),
+        observers: Sequence[Callable[[WindowVerdict], None]] = (),
         hold_uncommitted: bool = False,
         max_held_events: int = MAX_HELD_EVENTS,
         taps: Sequence[Callable[[Block], None]] = (),
@@ -167,7 +112,7 @@ class Monitor:
         self.observers = list(observers)
         self.taps = list(taps)  # see every non-empty block before its windows (the recorder keeps the raw samples)
         self.counters = MonitorCounters()
-        self.latest: WindowReport | None = None
+        self.latest: WindowVerdict | None = None
         self.hold_uncommitted = hold_uncommitted  # the service: hold what the store refuses, retry per window
         self.max_held_events = max_held_events
         self.held: list[Event] = []  # decided but not yet committed (the store refused), oldest first
@@ -188,8 +133,13 @@ class Monitor:
         return BlockWindows(lambda fs_hz: replace(settings.processing, fs_hz=fs_hz), settings.geometry, settings.health.clip_level_mps2)
 
     @property
-    def mode(self) -> str:
-        return self._judge.decider.state.mode.value
+    def mode(self) -> Mode:
+        return self._judge.mode
+
+    @property
+    def sensor_reported(self) -> dict[str, list[str]]:
+        """The problems of the SENSOR_FAULT in force, per channel (empty: the sensors are healthy)."""
+        return dict(self._judge.health.state.reported)
 
     def reconfigure(self, settings: MonitorSettings) -> None:
         """Apply a reloaded config; the alarm state carries over, the windows restart."""
@@ -199,8 +149,13 @@ class Monitor:
         windows.spans, windows.gaps = self._windows.spans, self._windows.gaps  # the gaps and status bits carry on
         self._windows = windows
 
+    def new_stream(self) -> None:
+        """The next block begins another recording: a new segment, never a dropout of the source."""
+        self._windows.new_stream()
+
     def state_dict(self) -> dict[str, Any]:
-        return {"decision": self._judge.decider.state.as_dict(), "health": self._judge.health.state.as_dict()}
+        j = self._judge
+        return {"decision": j.decider.state.as_dict(), "health": j.health.state.as_dict()}
 
     def save_state(self) -> None:
         """Commit the decision state, with any events still held. Raises StoreWriteError when the
@@ -220,23 +175,18 @@ class Monitor:
         self.counters.segments += self._windows.segments - segments_before
         events: list[Event] = []
         for w in windowed:
-            events += self._on_window(w.window, w.status, w.gaps_last_hour)
+            events += self.on_window(w)
         return events
 
-    def _on_window(self, window: WindowIndicators, status: tuple[SensorStatus, SensorStatus, SensorStatus], gaps_last_hour: int) -> list[Event]:
-        self.counters.windows += 1
-        judged = self._judge.judge(window, status, gaps_last_hour)
-        health, judgement, events = judged.health, judged.judgement, judged.events
-        if judgement is not None:
-            self.counters.judged += 1
-        elif health.gate is not None or judged.unfamiliar is not None:
-            self.counters.gated += 1
-            self.counters.unfamiliar += judged.unfamiliar is not None
-        else:
-            self.counters.sensor_fault_windows += 1
+    def on_window(self, windowed: Windowed) -> list[Event]:
+        """Judge one window, commit its events and report them; return what was committed (the
+        back office feeds a wagon's stored windows here, as the blocks' windows come here)."""
+        verdict = self._judge.judge(windowed.window, windowed.status, windowed.gaps_last_hour)
+        self.counters.count(verdict.outcome)
+        events = list(verdict.events)
         if events or self.held:
             events = self._commit(events)
-        self.latest = WindowReport(window, health, judgement, self.mode, tuple(events), judged.load, judged.p_full, judged.unfamiliar)
+        self.latest = replace(verdict, events=tuple(events))
         for observer in self.observers:
             observer(self.latest)
         return events

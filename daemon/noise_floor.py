@@ -61,7 +61,7 @@ def floor_noisy_channels(window: WindowIndicators, settings: HealthSettings) -> 
     in force."""
     if not settings.noise_floor_psd or window.spectra is None:
         return []
-    floors = noise_floors(window.spectra.matrix(), window.spectra.bands_hz)
+    floors = noise_floors(window.spectra.matrix, window.spectra.bands_hz)
     if floors is None:
         return []
     ratios = floor_ratios(floors)
@@ -93,7 +93,7 @@ def learn_noise_floor(windows: Iterable[WindowIndicators]) -> NoiseFloorFit | No
     for window in windows:
         if window.spectra is None:
             continue
-        floors = noise_floors(window.spectra.matrix(), window.spectra.bands_hz)
+        floors = noise_floors(window.spectra.matrix, window.spectra.bands_hz)
         if floors is not None:
             rows.append((floors, floor_ratios(floors)))
     if not rows:

@@ -38,7 +38,7 @@ from bogiemon.drivers.base import Block
 from bogiemon.drivers.recording import write_csv_recording
 
 if TYPE_CHECKING:
-    from bogiemon.daemon.monitor import WindowReport
+    from bogiemon.daemon.verdict import WindowVerdict
 
 MIB = 1 << 20
 # Recordings waiting for the writer at most: a default snapshot is 1.3 MiB in memory at 500 Hz.
@@ -200,7 +200,7 @@ class Recorder:
         ring.append(block.accel_mps2)
         self._periodic_feed(block, ring)
 
-    def on_window(self, report: WindowReport) -> None:
+    def on_window(self, report: WindowVerdict) -> None:
         """Write a snapshot for a window that raised SUSPECTED or CONFIRMED (the monitor's observer)."""
         if report.judgement is not None:
             self._judged_starts.append(report.window.start_s)

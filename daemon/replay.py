@@ -4,7 +4,8 @@ Each recording becomes the replay source the daemon itself would build from
 `[source] kind = "replay"`, with the config's own [source] settings (the CAN layout, the DBC,
 the block length), and the same Pipeline (source thread, ring with backpressure, processing
 thread) feeds one Monitor: the alarm state carries from one recording to the next as it would on
-the wagon, and each recording starts a new segment. Events go to a real event store: the given
+the wagon, and each recording starts a new segment (a new stream: never a gap that the dropouts
+check counts, as `fleet judge` judges a day of recordings). Events go to a real event store: the given
 state directory, or a temporary one that disappears afterwards.
 
 What a source skipped (unreadable log lines, frames with unusable time stamps or identifiers)
@@ -22,11 +23,12 @@ from pathlib import Path
 
 from bogiemon.daemon.analysis import recording_settings
 from bogiemon.daemon.config import BogiemonConfig, ReplaySourceConfig
-from bogiemon.daemon.monitor import Monitor, MonitorCounters, WindowReport
+from bogiemon.daemon.monitor import Monitor, MonitorCounters
+from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink
-from bogiemon.daemon.sources import open_source
+from bogiemon.daemon.sources import open_source, replay_source_config
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.recording import RecordingError
@@ -75,20 +77,6 @@ class ReplaySummary:
     reports: tuple[RecordingReport, ...] = field(default=())
 
 
-def replay_source_config(path: str | Path, config: BogiemonConfig, realtime: bool) -> ReplaySourceConfig:
-    """The [source] of a replay of path: the config's layout, DBC and block length, whatever its kind.
-
-    What `run` would use if [source] named this file; a serial source has no CAN settings and
-    leaves the defaults (the hub layout, the shipped DBC).
-    """
-    src = config.source
-    settings: dict[str, object] = {"max_block_s": src.max_block_s}
-    for name in ("layout", "dbc_path"):
-        if hasattr(src, name):
-            settings[name] = getattr(src, name)
-    return ReplaySourceConfig(kind="replay", path=str(path), realtime=realtime, **settings)  # type: ignore[arg-type]
-
-
 def replay(
     paths: Sequence[str | Path],
     config: BogiemonConfig,
@@ -96,7 +84,7 @@ def replay(
     realtime: bool = False,
     state_dir: str | Path | None = None,
     sinks: Sequence[EventSink] = (),
-    observers: Sequence[Callable[[WindowReport], None]] = (),
+    observers: Sequence[Callable[[WindowVerdict], None]] = (),
 ) -> ReplaySummary:
     """Run recordings in order through one Monitor; RecordingError for a file it cannot use."""
     if not paths:
@@ -115,6 +103,8 @@ def replay(
                     recording_settings(path, source.fs_hz, config)
                     if monitor is None:
                         monitor = Monitor(config.monitor_settings(load, source.fs_hz), store, sinks, observers)
+                    else:
+                        monitor.new_stream()  # the next recording: a new segment, never a dropout
                     samples_before = monitor.counters.samples
                     _run_pipeline(source, monitor, config)
                 finally:

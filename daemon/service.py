@@ -21,7 +21,9 @@ from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import excitation_of
-from bogiemon.daemon.monitor import Monitor, WindowReport
+from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.verdict import WindowVerdict
+from bogiemon.daemon.vocabulary import LoadState, Method
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.recorder import Recorder
@@ -38,7 +40,7 @@ EXIT_OK, EXIT_INTERNAL_ERROR = 0, 1
 EXIT_STORE_FAILED = 3
 
 
-def status_line(report: WindowReport | None, monitor: Monitor) -> str:
+def status_line(report: WindowVerdict | None, monitor: Monitor) -> str:
     """One line for systemctl status: mode, what gated or failed, and the judged indicators."""
     if report is None:
         return f"running, first window not complete yet ({monitor.counters.samples} samples)"
@@ -79,7 +81,7 @@ class Service:
         load: str | None = None,
         notifier: Notifier | None = None,
         sinks: list[EventSink] | None = None,
-        observers: list[Callable[[WindowReport], None]] | None = None,
+        observers: list[Callable[[WindowVerdict], None]] | None = None,
     ) -> None:
         self.config_path = config_path
         self.config = load_config(config_path)  # a bad config at start is a user error: exit 2
@@ -95,7 +97,7 @@ class Service:
     def _warn_if_not_commissioned(self, config: BogiemonConfig) -> None:
         """The fused method without this wagon's calibration judges against the fleet's population
         baseline, which misses most faults: say so at every start, where a keeper looks."""
-        missing = [ld for ld in ("full", "tare") if ld not in config.decision.fused] if config.decision.method == "fused" else []
+        missing = [ld for ld in LoadState if ld not in config.decision.fused] if config.decision.method is Method.FUSED else []
         if missing:
             self._log.warning(
                 "not commissioned: no calibration of this wagon for the load state(s) "

@@ -10,10 +10,8 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from typing import Any
 
-from bogiemon.daemon.events import Event, Severity
+from bogiemon.daemon.events import Event
 from bogiemon.daemon.logs import get_logger
-
-_LOG_METHOD = {Severity.INFO: "info", Severity.WARNING: "warning", Severity.ALARM: "critical"}
 
 
 class EventSink(ABC):
@@ -32,7 +30,7 @@ class LogSink(EventSink):
     def publish(self, event: Event) -> None:
         body = event.as_dict()
         message = body.pop("kind")
-        getattr(self._log, _LOG_METHOD[event.severity])(message, **body)
+        getattr(self._log, event.severity.log_level)(message, **body)
 
 
 class MemorySink(EventSink):

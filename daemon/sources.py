@@ -9,6 +9,7 @@ processing.fs_hz; a CSV replay brings its own.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 from bogiemon.daemon.analysis import recording_settings
@@ -79,6 +80,23 @@ OPENERS: Mapping[type, Opener] = {
     SimulatedSourceConfig: _open_simulated,
     ReplaySourceConfig: _open_replay,
 }
+
+
+def replay_source_config(path: str | Path, config: BogiemonConfig, realtime: bool = False, max_block_s: float | None = None) -> ReplaySourceConfig:
+    """The [source] of a replay of path: the config's layout, DBC and block length (or max_block_s),
+    whatever its kind. What `run` would use if [source] named this file; a serial source has no CAN
+    settings and leaves the defaults (the hub layout, the shipped DBC)."""
+    src = config.source
+    settings: dict[str, Any] = {"max_block_s": src.max_block_s if max_block_s is None else max_block_s}
+    if isinstance(src, CanSourceConfig | ReplaySourceConfig | SimulatedSourceConfig):
+        settings.update(layout=src.layout, dbc_path=src.dbc_path)
+    return ReplaySourceConfig(kind="replay", path=str(path), realtime=realtime, **settings)
+
+
+def open_replay_source(path: str | Path, config: BogiemonConfig, realtime: bool = False, max_block_s: float | None = None) -> Source:
+    """A recording opened as the daemon opens `[source] kind = "replay"` of it (replay_source_config):
+    `bogiemon replay` and `fleet analyze` read recordings this way."""
+    return open_source(config.model_copy(update={"source": replay_source_config(path, config, realtime, max_block_s)}))
 
 
 def open_source(config: BogiemonConfig) -> Source:

@@ -11,6 +11,7 @@ noise-floor bands, are read by the sensor health check alone (daemon/health.py).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -45,23 +46,53 @@ def band_label(band: int) -> str:
     return f"{BANDS_HZ[band]:g}-{BANDS_HZ[band + 1]:g} Hz"
 
 
+class WindowFeatures:
+    """The features of one window's spectra for one sensor geometry, each computed once, when first
+    read: the daemon judges a window by several of them (load, couplings, sensor checks), all from
+    the same modal cross-spectra."""
+
+    def __init__(self, spectra: WindowSpectra, geometry: BogieGeometry) -> None:
+        self.spectra = spectra
+        self.geometry = geometry
+
+    @functools.cached_property
+    def modal(self) -> NDArray[np.complex128]:
+        """(n_bands, 3, 3) cross-spectra of a_bounce, a_pitch, a_roll."""
+        return modal_spectra(self.spectra.matrix, self.geometry)
+
+    @functools.cached_property
+    def modal_coherency(self) -> NDArray[np.complex128]:
+        """(n_bands, 3, 3) coherency of a_bounce, a_pitch, a_roll per band."""
+        return coherency(self.modal)
+
+    @functools.cached_property
+    def coupling(self) -> NDArray[np.float64]:
+        """The COUPLING_FEATURES, in that order (NaN where a mode has no power)."""
+        coh = self.modal_coherency
+        return np.array([coh[b, i, j].real for _, i, j, b in COUPLING_FEATURES])
+
+    @functools.cached_property
+    def load(self) -> NDArray[np.float64]:
+        """The LOAD_FEATURES: log(mode power in band / mode power in all judged bands)."""
+        power = np.real(np.diagonal(self.modal[:N_JUDGED_BANDS], axis1=1, axis2=2))  # (bands, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share = np.log(power / power.sum(axis=0, keepdims=True))
+        return np.array([share[b, m] for _, m, b in LOAD_FEATURES])
+
+
 def modal_coherency(spectra: WindowSpectra, geometry: BogieGeometry) -> NDArray[np.complex128]:
     """(n_bands, 3, 3) coherency of a_bounce, a_pitch, a_roll per band."""
-    return coherency(modal_spectra(spectra.matrix(), geometry))
+    return WindowFeatures(spectra, geometry).modal_coherency
 
 
 def coupling_vector(spectra: WindowSpectra, geometry: BogieGeometry) -> NDArray[np.float64]:
     """The COUPLING_FEATURES of one window, in that order (NaN where a mode has no power)."""
-    coh = modal_coherency(spectra, geometry)
-    return np.array([coh[b, i, j].real for _, i, j, b in COUPLING_FEATURES])
+    return WindowFeatures(spectra, geometry).coupling
 
 
 def load_vector(spectra: WindowSpectra, geometry: BogieGeometry) -> NDArray[np.float64]:
     """The LOAD_FEATURES of one window: log(mode power in band / mode power in all judged bands)."""
-    power = np.real(np.diagonal(modal_spectra(spectra.matrix()[:N_JUDGED_BANDS], geometry), axis1=1, axis2=2))  # (bands, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        share = np.log(power / power.sum(axis=0, keepdims=True))
-    return np.array([share[b, m] for _, m, b in LOAD_FEATURES])
+    return WindowFeatures(spectra, geometry).load
 
 
 # --------------------------------------------------------------------------------------------

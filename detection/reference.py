@@ -55,7 +55,7 @@ def spectra_reference(
             for b in range(n_bands):
                 inside = (freqs >= bands_hz[b]) & (freqs < bands_hz[b + 1])
                 matrix[b, i, j] = density[inside].sum() * df_hz
-    return WindowSpectra.from_matrix(matrix, bands_hz)
+    return WindowSpectra(tuple(float(b) for b in bands_hz), matrix)
 
 
 def modal_reference(accel: NDArray[np.float64], geometry: BogieGeometry) -> NDArray[np.float64]:

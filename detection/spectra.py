@@ -48,48 +48,52 @@ N_BANDS = len(BANDS_HZ) - 1
 # The channel pairs of the off-diagonal entries, in the order stored.
 PAIRS: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 2))
 
-Triple = tuple[float, float, float]
-
-
-def _triples(values: NDArray[np.float64]) -> tuple[Triple, ...]:
-    return tuple((float(v[0]), float(v[1]), float(v[2])) for v in values)
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class WindowSpectra:
     """The band cross-spectral matrix of a1, a2, a3 over one window. (m/s^2)^2 per band.
 
-    power[b] = (S_11, S_22, S_33) in band b; cross_re[b], cross_im[b] = the real and imaginary
-    parts of (S_12, S_13, S_23). Bands are [bands_hz[b], bands_hz[b + 1]).
+    matrix[b] is the Hermitian 3 x 3 S_ij of band b = [bands_hz[b], bands_hz[b + 1]), kept as the
+    one array every reader uses (read-only: a window's record never changes); power and cross are
+    views of it in the shape the windows dataset stores (fleet/rows.py).
     """
 
     bands_hz: tuple[float, ...]
-    power: tuple[Triple, ...]
-    cross_re: tuple[Triple, ...]
-    cross_im: tuple[Triple, ...]
+    matrix: NDArray[np.complex128]  # (n_bands, 3, 3)
 
-    def matrix(self) -> NDArray[np.complex128]:
-        """(n_bands, 3, 3) Hermitian S_ij."""
-        n = len(self.power)
-        out = np.zeros((n, 3, 3), dtype=np.complex128)
-        power = np.asarray(self.power)
-        cross = np.asarray(self.cross_re) + 1j * np.asarray(self.cross_im)
-        for c in range(3):
-            out[:, c, c] = power[:, c]
-        for p, (i, j) in enumerate(PAIRS):
-            out[:, i, j] = cross[:, p]
-            out[:, j, i] = np.conj(cross[:, p])
-        return out
+    def __post_init__(self) -> None:
+        if self.matrix.shape != (len(self.bands_hz) - 1, 3, 3):
+            raise ValueError(f"a spectra matrix of {len(self.bands_hz) - 1} bands is (n_bands, 3, 3), got {self.matrix.shape}")
+        self.matrix.flags.writeable = False
+
+    def __eq__(self, other: object) -> bool:
+        """The same bands and every entry identical (a record read back is the record written)."""
+        if not isinstance(other, WindowSpectra):
+            return NotImplemented
+        return self.bands_hz == other.bands_hz and bool(np.array_equal(self.matrix, other.matrix, equal_nan=True))
+
+    __hash__ = None  # type: ignore[assignment]  # equal by value, and mutable in principle: never a key
+
+    @property
+    def power(self) -> NDArray[np.float64]:
+        """(n_bands, 3): S_11, S_22, S_33 per band."""
+        return np.real(np.diagonal(self.matrix, axis1=1, axis2=2))
+
+    @property
+    def cross(self) -> NDArray[np.complex128]:
+        """(n_bands, 3): S_12, S_13, S_23 per band (PAIRS' order)."""
+        return np.stack([self.matrix[:, i, j] for i, j in PAIRS], axis=1)
 
     @classmethod
-    def from_matrix(cls, matrix: NDArray[np.complex128], bands_hz: tuple[float, ...] = BANDS_HZ) -> WindowSpectra:
-        cross = np.stack([matrix[:, i, j] for i, j in PAIRS], axis=1)
-        return cls(
-            bands_hz=tuple(float(b) for b in bands_hz),
-            power=_triples(np.stack([matrix[:, c, c].real for c in range(3)], axis=1)),
-            cross_re=_triples(cross.real),
-            cross_im=_triples(cross.imag),
-        )
+    def from_parts(cls, power: NDArray[np.float64], cross: NDArray[np.complex128], bands_hz: tuple[float, ...] = BANDS_HZ) -> WindowSpectra:
+        """The matrix from its diagonal (n_bands, 3) and upper triangle (n_bands, 3), as stored."""
+        n = power.shape[0]
+        matrix = np.zeros((n, 3, 3), dtype=np.complex128)
+        for c in range(3):
+            matrix[:, c, c] = power[:, c]
+        for p, (i, j) in enumerate(PAIRS):
+            matrix[:, i, j] = cross[:, p]
+            matrix[:, j, i] = np.conj(cross[:, p])
+        return cls(tuple(float(b) for b in bands_hz), matrix)
 
 
 def band_bins(n_fft: int, fs_hz: float, bands_hz: tuple[float, ...] = BANDS_HZ) -> NDArray[np.intp]:
@@ -145,7 +149,11 @@ class WindowedSpectra:
         self._n_hops += 1
         if self._n_hops < self.hops_per_window:
             return None
-        return WindowSpectra.from_matrix(self._hops.mean(axis=0), self.bands_hz)
+        # Exactly Hermitian, from the diagonal's real part and the upper triangle: the sums leave a
+        # power an imaginary part of 1e-25 and the lower triangle a last bit off the upper's
+        # conjugate, and a stored record (fleet/rows.py keeps just these) reads back identical.
+        mean = self._hops.mean(axis=0)
+        return WindowSpectra.from_parts(np.real(np.diagonal(mean, axis1=1, axis2=2)), np.stack([mean[:, i, j] for i, j in PAIRS], axis=1), self.bands_hz)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,9 +1,10 @@
 """`bogiemon fleet analyze`: every wagon-day of a fleet through the detection core, on Dask.
 
 One task per wagon-day: its recordings in name order (the recorder's names sort by time), each
-read by the same replay source `bogiemon replay` uses, the blocks windowed by the monitor's own
-rules (daemon/windowing.py) and the windows written with what the gateway's sensor checks and
-load estimate said (docs/fleet-formats.md, section 2). A partition whose inputs and analysis
+opened as `bogiemon replay` opens it (daemon/sources.py), the blocks windowed by the monitor's own
+rules (daemon/windowing.py: each recording a new stream) and the windows written as they are, with
+the recording, the segment and the sensors' status bits of each, and the segments' starts
+(docs/fleet-formats.md, section 2). What the daemon concludes of a window is `fleet judge`'s. A partition whose inputs and analysis
 settings have not changed is not redone: a re-run after new days arrive does only the new work,
 and an interrupted run resumes (each partition is written under a temporary name and renamed,
 so it is either whole or absent, and never holds a row twice).
@@ -22,7 +23,6 @@ import logging
 import math
 import os
 import time
-import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,24 +34,24 @@ import pyarrow.parquet as pq
 
 from bogiemon.daemon.analysis import recording_settings
 from bogiemon.daemon.config import BogiemonConfig
-from bogiemon.daemon.health import assess_window
-from bogiemon.daemon.windowing import BlockWindows
+from bogiemon.daemon.sources import open_replay_source
+from bogiemon.daemon.windowing import BlockWindows, SegmentStart, Status
 from bogiemon.detection import WindowIndicators
+from bogiemon.drivers.atomic import write_atomically
 from bogiemon.drivers.base import Block, EndOfStream, Source
-from bogiemon.drivers.candb import load_layout
-from bogiemon.drivers.replay import open_replay
 from bogiemon.fleet import rows
 from bogiemon.fleet.layout import Day, Fleet, InputFile, Issue, Wagon, scan_fleet
 
 # 2: the channels' hop RMS range (the non-stationary gate) in every row; 3: the spectra's three
-# noise-floor bands above 64 Hz (the sensor noise-floor check).
-FORMAT = 3
+# noise-floor bands above 64 Hz (the sensor noise-floor check); 4: no conclusions in the rows (the
+# judge draws them), each segment start says whether it is a gap.
+FORMAT = 4
 PART_FILE = "part-0.parquet"
 METADATA_KEY = b"bogiemon"
 SUMMARY_FILE = "_analysis.json"
-# CSV recordings are fed a minute at a time, as `bogiemon analyze` does: the windows do not depend
-# on the block length (the core takes whole hops), the speed does.
-CSV_BLOCK_S = 60.0
+# CSV recordings are fed in the longest blocks a [source] allows: the windows do not depend on the
+# block length (the core takes whole hops), the speed does a little.
+CSV_BLOCK_S = 10.0
 # Below this a recording's times are no Unix time (a simulator's or a logger's own origin): they are
 # placed at the day's midnight UTC (docs/fleet-formats.md).
 UNIX_TIME_MIN_S = 1e8
@@ -129,15 +129,6 @@ def day_tasks(fleet: Fleet, out_dir: str | Path) -> list[DayTask]:
 # One wagon-day (runs on a Dask worker)
 
 
-def _open(file: InputFile, config: BogiemonConfig) -> Source:
-    layout = None
-    if not file.is_csv:
-        src = config.source
-        layout = load_layout(getattr(src, "dbc_path", "") or None, getattr(src, "layout", "hub"))
-    block_s = CSV_BLOCK_S if file.is_csv else config.source.max_block_s
-    return open_replay(file.path, rate=0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=block_s)
-
-
 def _blocks(source: Source) -> list[Block]:
     out = []
     while True:
@@ -150,41 +141,37 @@ def _blocks(source: Source) -> list[Block]:
 
 
 class _DayWindows:
-    """The monitor's windowing over one day's blocks (daemon/windowing.py), with each window's context."""
+    """The monitor's windowing over one day's blocks (daemon/windowing.py): each window with the
+    recording and segment it lies in and the sensors' status bits over it; the segments' starts."""
 
     def __init__(self, config: BogiemonConfig) -> None:
-        self.health = config.health_settings()
-        self.geometry = config.bogie_geometry()
-        self.load_model = config.load_model()
         self.recording = ""
         # The day's own gaps: the judge counts them across days again, from the segment starts.
-        self.blocks = BlockWindows(lambda fs_hz: recording_settings(self.recording, fs_hz, config), self.geometry,
-                                   self.health.clip_level_mps2, keep_starts=True)  # fmt: skip
+        self.blocks = BlockWindows(lambda fs_hz: recording_settings(self.recording, fs_hz, config), config.bogie_geometry(),
+                                   config.health.clip_level_mps2, keep_starts=True)  # fmt: skip
         self.windows: list[WindowIndicators] = []
-        self.context: list[dict[str, Any]] = []
+        self.recordings: list[str] = []
+        self.segments: list[int] = []
+        self.status: list[Status] = []
 
-    @property
-    def segment_starts(self) -> list[tuple[float, float]]:
-        return self.blocks.segment_starts
-
-    def feed(self, block: Block, recording: str) -> None:
+    def new_recording(self, recording: str) -> None:
+        """The next blocks are another recording's: a new stream, never a gap."""
         self.recording = recording  # named in the error of a rate the config cannot run at
+        self.blocks.new_stream()
+
+    def feed(self, block: Block) -> None:
         for w in self.blocks.feed(block):
-            health = assess_window(w.window, self.health, w.status, w.gaps_last_hour, self.geometry)
-            problems = {ch: [p.value for p in ps] for ch, ps in health.problems.items()}
             self.windows.append(w.window)
-            self.context.append({
-                "recording": recording, "segment": w.segment,
-                "status_0": int(w.status[0]), "status_1": int(w.status[1]), "status_2": int(w.status[2]),
-                "gate": health.gate.value if health.gate is not None else "",
-                "problems": json.dumps(problems, sort_keys=True) if problems else "",
-                "p_full": self.load_model.probability_full(w.window, self.geometry),
-            })  # fmt: skip
+            self.recordings.append(self.recording)
+            self.segments.append(w.segment)
+            self.status.append(w.status)
 
 
 def _read(file: InputFile, task: DayTask) -> list[Block]:
     """A recording's blocks on Unix time; raises for what cannot be used (the caller names it)."""
-    source = _open(file, task.config)
+    # Opened as `replay` and `run` open a recording (the config's [source] layout and DBC for a
+    # CAN log), in larger blocks for a CSV (fewer calls; the windows do not depend on them).
+    source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_csv else None)
     try:
         blocks = _blocks(source)
     finally:
@@ -247,8 +234,9 @@ def analyze_day(task: DayTask) -> DayResult:
                 covered += 1
                 continue
         try:
+            day.new_recording(name)
             for block in blocks:
-                day.feed(block, name)
+                day.feed(block)
         except Exception as exc:  # noqa: BLE001 - e.g. a rate the config cannot run at
             skipped.append(Issue(str(file.path), _unparsable(exc, str(file.path))))
             continue
@@ -256,14 +244,14 @@ def analyze_day(task: DayTask) -> DayResult:
         used += 1
         samples += sum(b.n_samples for b in blocks)
         recorded_s += sum(b.n_samples / b.fs_hz for b in blocks)
-    table = rows.to_table(day.windows, day.context)
+    table = rows.to_table(day.windows, day.recordings, day.segments, day.status)
     meta = {
         "format": FORMAT,
         "inputs": _inputs(task.files),
         "processing": task.digest,
         "skipped": [[i.path, i.reason] for i in skipped],
         "covered": covered,
-        "segment_starts": day.segment_starts,
+        "segment_starts": [[st.start_s, st.fs_hz, st.gap] for st in day.blocks.segment_starts],
         "recorded_s": recorded_s,
     }
     table = table.replace_schema_metadata({METADATA_KEY: json.dumps(meta).encode()})
@@ -279,14 +267,7 @@ def _unparsable(exc: BaseException, name: str) -> str:
 
 def _write_atomically(table: pa.Table, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.tmp"
-    try:
-        pq.write_table(table, tmp, compression="zstd")
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_atomically(path, lambda temporary: pq.write_table(table, temporary, compression="zstd"))
 
 
 def _utc(time_s: float) -> str:
@@ -412,6 +393,15 @@ def analyze_fleet(
 def wagon_partitions(out_dir: str | Path, wagon: Wagon) -> list[tuple[Day, Path]]:
     """The written partitions of a wagon's days, in date order (days not analysed left out)."""
     return [(d, p) for d in wagon.days if (p := partition_path(out_dir, wagon.wagon_id, d.date)).is_file()]
+
+
+def segment_starts_of(meta: dict[str, Any]) -> list[SegmentStart]:
+    """The segment starts a partition's metadata lists, in time order; ValueError if malformed."""
+    try:
+        starts = [SegmentStart(float(t), float(fs), bool(gap)) for t, fs, gap in meta.get("segment_starts", [])]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"segment_starts: expected [start_s, fs_hz, gap] triples ({exc})") from None
+    return sorted(starts, key=lambda s: s.start_s)
 
 
 def read_partition(path: Path) -> tuple[pa.Table, dict[str, Any]]:

@@ -11,7 +11,6 @@ out of its sisters'.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 from bogiemon.daemon.calibrate import CalibrationResult, calibrate_windows, fragment
 from bogiemon.daemon.config import load_config
 from bogiemon.detection import WindowIndicators
+from bogiemon.drivers.atomic import write_text_atomically
 from bogiemon.fleet import rows
 from bogiemon.fleet.analyze import read_partition, wagon_partitions
 from bogiemon.fleet.layout import CALIBRATION, FleetError, scan_fleet
@@ -67,7 +67,5 @@ def calibrate_wagon(
     config = load_config(wagon.config_path, log_warnings=False)  # the wagon's own config, without the old calibration
     files = tuple(str(p) for _, p in chosen)
     result = calibrate_windows(windows, config, load, files=files)
-    tmp = target.with_name(f".{target.name}.tmp")
-    tmp.write_text(fragment(result), encoding="utf-8")
-    os.replace(tmp, target)
+    write_text_atomically(target, fragment(result))
     return FleetCalibration(wagon_id, target, tuple(d.date for d, _ in chosen), result)

@@ -1,10 +1,12 @@
 """`bogiemon fleet judge`: each wagon's windows through the daemon's own decision, in time order.
 
-Per wagon, its partitions in date order, each window judged by the WindowJudge that `run` and
-`replay` use (sensor health, gating, load state, fused score and trend, k-of-n confirmation,
-diagnosis), with the sensors' status bits of the window and the gaps of the last hour counted
-as the monitor counts them (daemon/windowing.py): the same events as the gateway, the trend
-carried across days. Writes the fleet's events in the daemon's event schema, each wagon's
+Per wagon, its partitions in date order, each window given to the Monitor's own per-window call
+(Monitor.on_window: the verdict of daemon/verdict.py, sensor health, gating, load state, fused
+score and trend, k-of-n confirmation, diagnosis, the events committed and numbered as the gateway's
+store numbers them), with the sensors' status bits of the window and the gaps of the last hour
+from the stored segment starts (daemon/windowing.py): the same events as the gateway, the trend
+carried across days. Nothing of the decision is restated here: the series is read off each
+window's verdict. Writes the fleet's events in the daemon's event schema, each wagon's
 series, and wagons.json (docs/fleet-formats.md, section 3), with each wagon's standing against
 its sisters (fleet/evidence.py).
 """
@@ -23,17 +25,20 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from bogiemon.daemon.decision import FUSED_SCORE, Mode
-from bogiemon.daemon.delivery.schema import encode_event
+from bogiemon.daemon.decision import FUSED_TREND
 from bogiemon.daemon.events import Event, EventKind
-from bogiemon.daemon.models import coupling_features
-from bogiemon.daemon.monitor import WindowJudge
-from bogiemon.daemon.windowing import GapMemory
+from bogiemon.daemon.messages import encode_event
+from bogiemon.daemon.models import finite_or_none
+from bogiemon.daemon.monitor import MemoryEventLog, Monitor
+from bogiemon.daemon.verdict import Outcome, WindowVerdict
+from bogiemon.daemon.vocabulary import LoadState, Mode
+from bogiemon.daemon.windowing import GapMemory, Windowed
+from bogiemon.drivers.atomic import write_atomically, write_text_atomically
 from bogiemon.fleet import rows
-from bogiemon.fleet.analyze import SUMMARY_FILE, read_partition, wagon_partitions
+from bogiemon.fleet.judged_files import JUDGED_FORMAT
+from bogiemon.fleet.analyze import SUMMARY_FILE, read_partition, segment_starts_of, wagon_partitions
 from bogiemon.fleet.layout import Fleet, Issue, Wagon, scan_fleet
 
-FORMAT = 1
 SERIES_FIELDS = (
     ("time_s", pa.float64()), ("judged", pa.bool_()), ("load", pa.string()), ("score", pa.float64()),
     ("trend", pa.float64()), ("warning", pa.float64()), ("alarm", pa.float64()), ("trend_warning", pa.float64()),
@@ -58,9 +63,9 @@ class LoadEvidence:
 @dataclass(frozen=True)
 class WagonJudged:
     wagon_id: str
-    events: tuple[Event, ...]
+    events: tuple[tuple[int, Event], ...]  # (seq, event) in commit order
     series: pa.Table
-    mode: str
+    mode: Mode
     sensor_reported: dict[str, list[str]]
     windows: int
     judged: int
@@ -73,29 +78,62 @@ class WagonJudged:
     issues: tuple[Issue, ...]
 
 
+class _Series:
+    """A wagon's series (SERIES_FIELDS), one row per window verdict, and the coupling vectors of its
+    judged windows on its first and last day (fleet/evidence.py)."""
+
+    def __init__(self) -> None:
+        self.columns: dict[str, list[Any]] = {name: [] for name, _ in SERIES_FIELDS}
+        self.evidence: dict[str, LoadEvidence] = {}
+        self.first_day = self.last_day = False
+        self.trend: float | None = None  # the latest judged window's trend and its alarm level
+        self.trend_alarm: float | None = None
+
+    def __call__(self, verdict: WindowVerdict) -> None:
+        j, health = verdict.judgement, verdict.health
+        gate = health.gate.value if health.gate is not None else "unfamiliar_load" if verdict.outcome is Outcome.UNFAMILIAR else ""
+        row: dict[str, Any] = {
+            "time_s": verdict.window.end_s, "judged": j is not None, "load": verdict.load or "", "score": NAN, "trend": NAN,
+            "warning": NAN, "alarm": NAN, "trend_warning": NAN, "trend_alarm": NAN, "mode": verdict.mode.value, "gate": gate,
+            "sensor_problems": "; ".join(f"{ch} {'/'.join(p.value for p in ps)}" for ch, ps in health.problems.items()),
+        }  # fmt: skip
+        if j is not None:
+            row["score"], row["warning"], row["alarm"] = j.headline()
+            trend_limit = j.limits.get(FUSED_TREND)
+            if trend_limit is not None:
+                row.update(trend=j.trend, trend_warning=trend_limit.warning, trend_alarm=trend_limit.alarm)
+                self.trend, self.trend_alarm = j.trend, trend_limit.alarm
+            x = finite_or_none(verdict.features.coupling) if verdict.features is not None else None
+            if x is not None and verdict.load is not None:
+                ev = self.evidence.setdefault(verdict.load, LoadEvidence())
+                if self.first_day:
+                    ev.first_day.append([float(v) for v in x])
+                if self.last_day:
+                    ev.last_day.append([float(v) for v in x])
+        for name, _ in SERIES_FIELDS:
+            self.columns[name].append(row[name])
+
+
 def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
-    """The daemon's decision over one wagon's analysed days."""
-    config = wagon.config
-    settings = config.monitor_settings()
-    judge = WindowJudge(settings)
-    gaps = GapMemory()
-    geometry = settings.geometry
-    fused = settings.decision.fused
-    previous_fs: float | None = None
+    """The daemon's decision over one wagon's analysed days: its windows, in time order, through
+    the Monitor's own per-window call (a Monitor without blocks, its events numbered in a memory
+    log as the gateway's store numbers them)."""
+    series = _Series()
+    log = MemoryEventLog()
+    monitor = Monitor(wagon.config.monitor_settings(), log, observers=[series])
+    gaps = GapMemory()  # the gaps of the day's segment starts, counted across days as the monitor counts them
     last_end_s = -math.inf
-    events: list[Event] = []
-    series: dict[str, list[Any]] = {name: [] for name, _ in SERIES_FIELDS}
-    counts = {"windows": 0, "judged": 0, "gated": 0, "sensor": 0}
-    evidence: dict[str, LoadEvidence] = {}
     issues: list[Issue] = []
     days: list[str] = []
-    trend = trend_alarm = None
     partitions = wagon_partitions(out_dir, wagon)
     for index, (day, path) in enumerate(partitions):
         try:
             table, meta = read_partition(path)
             windows = rows.from_table(table)
-        except (OSError, KeyError, ValueError, pa.ArrowException) as exc:
+            status = rows.status_of(table)
+            segments = table.column("segment").to_pylist()
+            starts = segment_starts_of(meta)
+        except (OSError, KeyError, ValueError, TypeError, pa.ArrowException) as exc:
             issues.append(Issue(str(path), f"partition does not read, day skipped: {exc}"))
             continue
         if windows and windows[0].start_s < last_end_s:
@@ -103,54 +141,16 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
             continue
         days.append(day.date)
         issues += [Issue(str(p), str(r)) for p, r in meta.get("skipped", [])]
-        status = rows.status_of(table)
-        starts = sorted((float(t), float(fs)) for t, fs in meta.get("segment_starts", []))
+        series.first_day, series.last_day = len(days) == 1, index == len(partitions) - 1
         next_start = 0
-        last_day = index == len(partitions) - 1
-        first_day = len(days) == 1
-        for window, window_status in zip(windows, status, strict=True):
-            # The gaps of the blocks before this window, as the monitor counted them: a new
-            # segment at the same rate is a gap (a recording's first block, a lost stretch), a
-            # new rate (or the wagon's first block) is a new core.
-            while next_start < len(starts) and starts[next_start][0] <= window.start_s:
-                start_s, fs_hz = starts[next_start]
-                if previous_fs is not None and fs_hz == previous_fs:
-                    gaps.add(start_s)
-                previous_fs, next_start = fs_hz, next_start + 1
-            judged = judge.judge(window, window_status, gaps.count_before(window.end_s))
-            events += judged.events
-            counts["windows"] += 1
-            health, judgement = judged.health, judged.judgement
-            row: dict[str, Any] = {
-                "time_s": window.end_s, "judged": judgement is not None, "load": judged.load or "", "score": NAN, "trend": NAN,
-                "warning": NAN, "alarm": NAN, "trend_warning": NAN, "trend_alarm": NAN,
-                "mode": judge.decider.state.mode.name, "gate": health.gate.value if health.gate is not None else "",
-                "sensor_problems": "; ".join(f"{ch} {'/'.join(p.value for p in ps)}" for ch, ps in health.problems.items()),
-            }  # fmt: skip
-            if judgement is not None:
-                counts["judged"] += 1
-                load = judged.load or ""
-                if FUSED_SCORE in judgement.values and fused is not None and load in fused.baselines:
-                    lv = fused.baselines[load].levels
-                    row.update(score=judgement.values[FUSED_SCORE], trend=judgement.trend, warning=lv.warning, alarm=lv.alarm,
-                               trend_warning=lv.trend_warning, trend_alarm=lv.trend_alarm)  # fmt: skip
-                    trend, trend_alarm = judgement.trend, lv.trend_alarm
-                else:  # the thresholds method: the worst indicator against its alarm level
-                    row.update(score=judgement.alarm_ratio, warning=NAN, alarm=1.0)
-                x = coupling_features(window, geometry)
-                if x is not None:
-                    ev = evidence.setdefault(load, LoadEvidence())
-                    if first_day:
-                        ev.first_day.append([float(v) for v in x])
-                    if last_day:
-                        ev.last_day.append([float(v) for v in x])
-            elif health.gate is not None or judged.unfamiliar is not None:
-                counts["gated"] += 1
-                row["gate"] = row["gate"] or "unfamiliar_load"
-            else:
-                counts["sensor"] += 1
-            for name, _ in SERIES_FIELDS:
-                series[name].append(row[name])
+        for window, window_status, segment in zip(windows, status, segments, strict=True):
+            # The starts before the window, as the monitor met them: a block starting a segment
+            # arrives before the windows it begins.
+            first = next_start
+            while next_start < len(starts) and starts[next_start].start_s <= window.start_s:
+                next_start += 1
+            gaps.add(starts[first:next_start])
+            monitor.on_window(Windowed(window, window_status, gaps.count_before(window.end_s), segment))
         if windows:
             last_end_s = windows[-1].end_s
     mean_evidence = {
@@ -160,13 +160,14 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
             "first_day_windows": len(ev.first_day),
             "last_day_windows": len(ev.last_day),
         }
-        for load, ev in evidence.items()
+        for load, ev in series.evidence.items()
     }
+    c = monitor.counters
     return WagonJudged(
-        wagon_id=wagon.wagon_id, events=tuple(events), series=pa.Table.from_pydict(series, schema=SERIES_SCHEMA),
-        mode=judge.decider.state.mode.name, sensor_reported=dict(judge.health.state.reported),
-        windows=counts["windows"], judged=counts["judged"], gated=counts["gated"], sensor_fault_windows=counts["sensor"],
-        trend=_finite(trend), trend_alarm=_finite(trend_alarm), days=tuple(days), evidence=mean_evidence, issues=tuple(issues),
+        wagon_id=wagon.wagon_id, events=tuple(log.committed), series=pa.Table.from_pydict(series.columns, schema=SERIES_SCHEMA),
+        mode=monitor.mode, sensor_reported=dict(monitor.sensor_reported), windows=c.windows, judged=c.judged, gated=c.gated,
+        sensor_fault_windows=c.sensor_fault_windows, trend=_finite(series.trend), trend_alarm=_finite(series.trend_alarm),
+        days=tuple(days), evidence=mean_evidence, issues=tuple(issues),
     )  # fmt: skip
 
 
@@ -175,13 +176,14 @@ def _finite(value: float | None) -> float | None:
 
 
 def state_of(judged: WagonJudged) -> str:
+    """The wagon's state on the fleet page (wagons.json's words: docs/fleet-formats.md)."""
     if judged.windows == 0:
         return "NO_DATA"
-    if judged.mode == Mode.CONFIRMED.name:
+    if judged.mode is Mode.CONFIRMED:
         return "CONFIRMED"
     if judged.sensor_reported:
         return "SENSOR_FAULT"
-    return judged.mode  # SUSPECTED or NORMAL
+    return judged.mode.name  # SUSPECTED or NORMAL
 
 
 # --------------------------------------------------------------------------------------------
@@ -225,29 +227,23 @@ def judge_fleet(
     out = Path(out_dir)
     (out / "series").mkdir(parents=True, exist_ok=True)
     relative = fleet_relative(fleet, judged)
-    with open(out / "events.jsonl.tmp", "w", encoding="utf-8") as f:
-        for j in judged:
-            for seq, event in enumerate(j.events, start=1):
-                f.write(encode_event(j.wagon_id, seq, event) + "\n")
-    (out / "events.jsonl.tmp").replace(out / "events.jsonl")
+    write_text_atomically(out / "events.jsonl", "".join(encode_event(j.wagon_id, seq, event) + "\n" for j in judged for seq, event in j.events))
     entries = []
     for wagon, j in zip(fleet.wagons, judged, strict=True):
         part = out / "series" / f"wagon={wagon.wagon_id}"
         part.mkdir(parents=True, exist_ok=True)
-        pq.write_table(j.series, part / "part-0.parquet", compression="zstd")
+        write_atomically(part / "part-0.parquet", lambda temporary, series=j.series: pq.write_table(series, temporary, compression="zstd"))
         entries.append(_wagon_entry(wagon, j, relative.get(wagon.wagon_id)))
     entries.sort(key=lambda e: (-e["attention"], e["wagon"]))
     issues = (*fleet.issues, *(i for j in judged for i in j.issues))
     document = {
-        "format": FORMAT,
+        "format": JUDGED_FORMAT,
         "generated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "fleet": fleet.name,
         "wagons": entries,
         "inputs": {"wagons": len(fleet.wagons), "recordings": fleet.recordings, "skipped": [i.as_dict() for i in _unique(issues)]},
     }
-    tmp = out / "wagons.json.tmp"
-    tmp.write_text(json.dumps(document, indent=1, allow_nan=False) + "\n", encoding="utf-8")
-    tmp.replace(out / "wagons.json")
+    write_text_atomically(out / "wagons.json", json.dumps(document, indent=1, allow_nan=False) + "\n")
     states: dict[str, int] = {}
     for e in entries:
         states[e["state"]] = states.get(e["state"], 0) + 1
@@ -281,8 +277,8 @@ STANDS_OUT_ATTENTION = 200.0
 
 def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) -> dict[str, Any]:
     state = state_of(j)
-    last = j.events[-1] if j.events else None
-    confirmed = [e for e in j.events if e.kind is EventKind.CONFIRMED]
+    last_seq, last = j.events[-1] if j.events else (0, None)
+    confirmed = [e for _, e in j.events if e.kind is EventKind.CONFIRMED]
     diagnosis = None
     if state == "CONFIRMED" and confirmed:
         d = confirmed[-1].details.get("diagnosis") or {}
@@ -293,7 +289,7 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
     if relative is not None and relative.get("stands_out"):
         attention += STANDS_OUT_ATTENTION
     notes = []
-    ran_in = [ld for ld in ("full", "tare") if ld in j.evidence] or (["full", "tare"] if not wagon.commissioned else [])
+    ran_in = [ld for ld in LoadState if ld in j.evidence] or (list(LoadState) if not wagon.commissioned else [])
     missing = [ld for ld in ran_in if ld not in wagon.commissioned]
     if missing:
         notes.append(f"not commissioned for {', '.join(missing)}: judged against the fleet's population baseline, which misses most faults (`bogiemon fleet calibrate {wagon.wagon_id}`)")
@@ -309,7 +305,7 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
         "attention": round(attention, 3),
         "last_event": None if last is None else {
             "kind": last.kind.value, "time_s": last.time_s, "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(last.time_s)),
-            "seq": len(j.events),
+            "seq": last_seq,
         },  # fmt: skip
         "diagnosis": diagnosis,
         "sensor_problems": j.sensor_reported,

@@ -21,7 +21,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-from bogiemon.daemon.delivery.schema import TIME_S_MAX, TIME_S_MIN, EventMessage, SchemaError, decode, printable
+from bogiemon.daemon.messages import TIME_S_MAX, TIME_S_MIN, EventMessage, SchemaError, decode, printable
 
 STATES = ("CONFIRMED", "SUSPECTED", "SENSOR_FAULT", "NORMAL", "NO_DATA")
 EVENT_KINDS = ("SUSPECTED", "CONFIRMED", "CLEARED", "SENSOR_FAULT", "SENSOR_CLEARED")
@@ -93,6 +93,8 @@ def _is(value: Any, kind: str) -> bool:
 
 
 # Field -> kind; a trailing "?" allows null.
+# 2: the series' mode in the daemon's words ("normal", "suspected", "confirmed").
+JUDGED_FORMAT = 2
 TOP_FIELDS = {"format": "int", "generated_utc": "str", "fleet": "str", "wagons": "list", "inputs": "obj"}
 INPUT_FIELDS = {"wagons": "int", "recordings": "int", "skipped": "list"}
 SKIPPED_FIELDS = {"path": "str", "reason": "str"}
@@ -159,8 +161,10 @@ def read_wagons_json(path: Path) -> dict[str, Any]:
         raise ReportError(f"{path}: not valid JSON ({printable(str(exc))})") from None
     if not isinstance(doc, dict):
         raise ReportError(f"{path}: expected a JSON object")
-    if "format" in doc and doc["format"] != 1:
-        raise ReportError(f"{path}: format {printable(repr(doc['format']), 20)}, this bogiemon reads format 1")
+    if "format" in doc and doc["format"] != JUDGED_FORMAT:
+        raise ReportError(
+            f"{path}: format {printable(repr(doc['format']), 20)}, this bogiemon reads format {JUDGED_FORMAT}: run `bogiemon fleet judge` again"
+        )
     _check(doc, TOP_FIELDS, path, "")
     _check(doc["inputs"], INPUT_FIELDS, path, "inputs")
     for i, skipped in enumerate(doc["inputs"]["skipped"]):

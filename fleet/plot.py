@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.daemon.delivery.schema import EventMessage
+from bogiemon.daemon.messages import EventMessage
+from bogiemon.daemon.vocabulary import Mode
 from bogiemon.fleet import svg
 from bogiemon.fleet.judged_files import EMPTY_SERIES, Series, WagonPage
 
@@ -157,7 +158,7 @@ def _mode_strip(plot: _Plot, series: Series, axis: svg.BrokenAxis) -> None:
     runs: list[list[Any]] = []  # [mode, x0, x1]
     for s, e in zip(starts.tolist(), ends.tolist(), strict=True):
         mode = str(series.mode[s])
-        if mode not in ("SUSPECTED", "CONFIRMED"):
+        if mode not in (Mode.SUSPECTED, Mode.CONFIRMED):
             continue
         x0, x1 = float(x[s]), max(float(x[e]), float(x[s]) + 1.0)
         if runs and runs[-1][0] == mode and x0 - runs[-1][2] < 1.0:

@@ -9,7 +9,6 @@ notes, reasons, paths) is escaped: those files were not written by the keeper.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -17,7 +16,8 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from bogiemon.daemon.delivery.schema import EventMessage
+from bogiemon.daemon.messages import EventMessage
+from bogiemon.drivers.atomic import write_bytes_atomically
 from bogiemon.fleet import svg
 from bogiemon.fleet.judged_files import EVENT_KINDS, STATES, Judged, ReportError, WagonPage, read_judged
 from bogiemon.fleet.plot import (
@@ -91,7 +91,7 @@ svg text{font-size:11px;fill:#555}
 .s,.t{stroke-width:1.6}.lw,.la{stroke-width:1.2;stroke-dasharray:6 4}
 .e{stroke-width:1.2}
 text.el{font-size:10px;font-weight:600}
-.m-SUSPECTED{fill:#ffe082}.m-CONFIRMED{fill:#ef9a9a}
+.m-suspected{fill:#ffe082}.m-confirmed{fill:#ef9a9a}
 .brk{fill:#eeeeee;stroke:none}.bk{stroke:#616161;stroke-width:1.2}.gd{stroke:#bdbdbd}
 text.dl{fill:#333;font-weight:600}text.gl{font-size:10px;fill:#757575}
 .legend span{margin-right:14px;white-space:nowrap}
@@ -301,12 +301,9 @@ def write_report(judged_dir: Path | str, out_path: Path | str, title: str | None
     page, points = render(judged, title)
     out = Path(out_path)
     data = page.encode("utf-8")
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     try:
-        tmp.write_bytes(data)
-        os.replace(tmp, out)
+        write_bytes_atomically(out, data)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise ReportError(f"{out}: cannot be written ({exc.strerror or exc})") from None
     counts = {s: sum(1 for p in judged.wagons if p.entry["state"] == s) for s in STATES}
     return ReportSummary(

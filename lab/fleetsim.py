@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bogiemon.drivers.atomic import write_text_atomically
 from bogiemon.daemon import tomlout
 from bogiemon.detection import PAPER_LAYOUT, Corner
 from bogiemon.lab.robust.fleet import (
@@ -503,7 +504,7 @@ def simulate_fleet(root: str | Path, plan: FleetPlan, progress: Progress | None 
             for w in range(plan.n_wagons)
         ),
     )
-    _write_atomically(root / "truth.json", (json.dumps(truth.to_dict(), indent=2) + "\n").encode())
+    write_text_atomically(root / "truth.json", json.dumps(truth.to_dict(), indent=2) + "\n")
     if progress is not None:
         progress(1.0)
     return truth
@@ -552,7 +553,4 @@ def _write_recording(path: Path, time_s: Any, accel_mps2: Any) -> None:
         partial.unlink(missing_ok=True)
 
 
-def _write_atomically(path: Path, data: bytes) -> None:
-    temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_bytes(data)
-    os.replace(temporary, path)
+

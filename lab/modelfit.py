@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.drivers.atomic import write_text_atomically
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.health import HealthSettings, assess_window
 from bogiemon.daemon.commissioning import fit_spread
@@ -337,6 +338,6 @@ def write_models(models: FittedModels, directory: str | Path) -> list[Path]:
     out = []
     for name, (title, body) in files.items():
         path = directory / name
-        path.write_text("\n".join([title, *header]) + "\n\n" + tomlout.dumps(body), encoding="utf-8")
+        write_text_atomically(path, "\n".join([title, *header]) + "\n\n" + tomlout.dumps(body))
         out.append(path)
     return out

@@ -78,10 +78,6 @@ class SpeedProfile:
     def spec(self) -> str:
         return ",".join(f"{t:g}:{v:g}" for t, v in self.points)
 
-    @property
-    def is_constant(self) -> bool:
-        return len({v for _, v in self.points}) == 1
-
     def arrays_mps(self) -> tuple[np.ndarray, np.ndarray]:
         """(times_s, speeds_mps) for the kernel."""
         return np.array([t for t, _ in self.points]), np.array([v / 3.6 for _, v in self.points])

@@ -12,6 +12,9 @@ against the rules in [tool.bogiemon.house]:
   never when the module is imported;
 - `only_from`: a layer is imported by the listed modules alone, and by them only lazily.
 
+A target is a layer (`daemon`) or a part of one, dotted below the package (`daemon.delivery`: that
+package and every module in it).
+
 Imports under `if TYPE_CHECKING:` are for the type checker and never run: they are not counted.
 """
 
@@ -112,6 +115,14 @@ def load_rules(pyproject: Mapping[str, object]) -> list[Rule]:
     return rules
 
 
+def reaches(target_module: str, target: str) -> bool:
+    """Whether an import of target_module reaches a rule's target: a layer, or a dotted part of one."""
+    if "." not in target:
+        return layer_of(target_module) == target
+    prefix = f"{PACKAGE}.{target}"
+    return target_module == prefix or target_module.startswith(prefix + ".")
+
+
 def violations(found: list[Import], rules: list[Rule]) -> list[str]:
     # An only_from entry is the one way through a `never`: its modules may reach the layer lazily.
     gates = {(module, r.layer) for r in rules if r.kind == "only_from" for module in r.targets}
@@ -123,10 +134,11 @@ def violations(found: list[Import], rules: list[Rule]) -> list[str]:
         gated = imp.lazy and (imp.module, dst) in gates
         where = f"{imp.path}:{imp.line}: {imp.module} imports {imp.target}{' (inside a function)' if imp.lazy else ''}"
         for rule in rules:
-            if rule.kind == "never" and src == rule.layer and dst in rule.targets and not gated:
-                out.append(f"{where}: broken layer '{rule.layer} never imports {dst}': {rule.why}")
-            elif rule.kind == "lazily" and src == rule.layer and dst in rule.targets and not imp.lazy:
-                out.append(f"{where}: broken layer '{rule.layer} imports {dst} only inside a function': {rule.why}")
+            hit = next((t for t in rule.targets if reaches(imp.target, t)), None)
+            if rule.kind == "never" and src == rule.layer and hit is not None and not gated:
+                out.append(f"{where}: broken layer '{rule.layer} never imports {hit}': {rule.why}")
+            elif rule.kind == "lazily" and src == rule.layer and hit is not None and not imp.lazy:
+                out.append(f"{where}: broken layer '{rule.layer} imports {hit} only inside a function': {rule.why}")
             elif rule.kind == "only_from" and dst == rule.layer and (imp.module not in rule.targets or not imp.lazy):
                 allowed = ", ".join(rule.targets)
                 out.append(f"{where}: broken layer '{rule.layer} is imported only by {allowed}, inside a function': {rule.why}")

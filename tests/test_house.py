@@ -19,6 +19,12 @@ RULES = textwrap.dedent(
     "bogiemon.daemon.cli" = "daemon/cli"
     "bogiemon.simulator" = "simulator"
     "bogiemon.lab" = "lab"
+    "bogiemon.fleet" = "fleet"
+
+    [[tool.bogiemon.house.never]]
+    layer = "fleet"
+    targets = ["daemon.delivery"]
+    why = "not the gateway's delivery stack"
 
     [[tool.bogiemon.house.never]]
     layer = "detection"
@@ -46,7 +52,7 @@ RULES = textwrap.dedent(
 def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
     (tmp_path / "pyproject.toml").write_text(RULES, encoding="utf-8")
     for name, text in {"detection/__init__.py": "", "daemon/__init__.py": "", "daemon/cli/__init__.py": "",
-                       "simulator/__init__.py": "", "lab/__init__.py": "", **files}.items():  # fmt: skip
+                       "simulator/__init__.py": "", "lab/__init__.py": "", "fleet/__init__.py": "", **files}.items():  # fmt: skip
         path = tmp_path / name
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(textwrap.dedent(text), encoding="utf-8")
@@ -74,6 +80,8 @@ def test_the_check_in_make_test_passes_on_the_project() -> None:
         ("daemon/service.py", "def f():\n    from bogiemon.lab import study\n", "'daemon never imports lab'"),
         ("daemon/cli/study.py", "from bogiemon.lab import study\n", "'lab is imported only by bogiemon.daemon.cli.study, inside a function'"),
         ("simulator/run.py", "from ..lab import study\n", "'lab is imported only by bogiemon.daemon.cli.study, inside a function'"),
+        ("fleet/judge.py", "from bogiemon.daemon.delivery.publisher import send\n", "'fleet never imports daemon.delivery'"),
+        ("fleet/judge.py", "def f():\n    import bogiemon.daemon.delivery\n", "'fleet never imports daemon.delivery'"),
     ],
 )
 def test_a_wrong_import_is_named_with_its_file_line_and_broken_layer(tmp_path: Path, name: str, text: str, broken: str) -> None:
@@ -88,6 +96,8 @@ def test_lazy_imports_where_allowed_and_type_checking_imports_pass(tmp_path: Pat
         "daemon/cli/study.py": "def run():\n    from bogiemon.lab import study\n",
         "detection/core.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from bogiemon.daemon import config\n",
         "lab/plan.py": "from bogiemon.daemon import config\nfrom bogiemon.simulator import run\n",
+        # A dotted target names that part alone: the rest of its layer stays open.
+        "fleet/judge.py": "from bogiemon.daemon import messages\nfrom bogiemon.daemon.deliveryman import x\n",
     }
     assert house.check(_tree(tmp_path, files))[0] == []
 

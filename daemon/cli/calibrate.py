@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -29,6 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.calibrate import calibrate, fragment
     from bogiemon.daemon.config import load_config
+    from bogiemon.drivers.atomic import write_text_atomically
     from bogiemon.daemon.calibrate import CalibrationError, calibrate_loads
 
     config = load_config(args.config)
@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.files or not args.load:
             raise CalibrationError("RECORDING... needs --load full, tare or auto (or use --full ... --tare ...)")
         result = calibrate(args.files, config, args.load, names, args.warning_rate, args.alarm_rate)
-    Path(args.output).write_text(fragment(result), encoding="utf-8")
+    write_text_atomically(args.output, fragment(result))
     print(f"{result.n_judged} of {result.n_windows} windows judged; wrote {args.output}", file=sys.stderr)
     if result.load_note:
         print(f"  load states: {result.load_note}", file=sys.stderr)

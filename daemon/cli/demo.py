@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 from bogiemon.daemon.events import EventKind
 
 if TYPE_CHECKING:
-    from bogiemon.daemon.monitor import WindowReport
+    from bogiemon.daemon.verdict import WindowVerdict
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -44,7 +44,7 @@ class LiveDisplay:
         self.confirmed_at_s: float | None = None
         self.events: list[str] = []
 
-    def __call__(self, report: WindowReport) -> None:
+    def __call__(self, report: WindowVerdict) -> None:
         w = report.window
         if self.t0_s is None:
             self.t0_s = w.start_s  # the first window starts with the run

@@ -75,7 +75,7 @@ def connection_from_args(args: argparse.Namespace) -> ConnectionSettings:
 def format_received(received: Received, as_json: bool, with_status: bool) -> str | None:
     """The line to print for a message, or None."""
     from bogiemon.daemon.cli.events import format_event
-    from bogiemon.daemon.delivery.schema import dump
+    from bogiemon.daemon.messages import dump
     if received.event is not None:
         if received.duplicate:
             return None
@@ -97,7 +97,7 @@ def format_received(received: Received, as_json: bool, with_status: bool) -> str
 
 def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.delivery.connection import readable_by_others
-    from bogiemon.daemon.delivery.listener import Listener, ListenError, Received, ReceivedStore
+    from bogiemon.daemon.delivery.listener import Listener, ListenError, ReceivedStore
     connection = connection_from_args(args)
     for secret in (args.password_file, args.tls_key):  # the files whose content must stay private
         if secret and (exposed := readable_by_others(secret)) is not None:

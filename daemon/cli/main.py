@@ -23,7 +23,7 @@ USER_ERRORS: frozenset[str] = frozenset(
         "bogiemon.daemon.delivery.connection.CredentialsError",
         "bogiemon.daemon.delivery.listener.ListenError",
         "bogiemon.daemon.models.ModelError",
-        "bogiemon.daemon.store.StoreError",
+        "bogiemon.daemon.store_file.StoreError",
         "bogiemon.fleet.layout.FleetError",
         "bogiemon.fleet.judge.JudgeError",
         "bogiemon.fleet.judged_files.ReportError",

@@ -14,12 +14,13 @@ from bogiemon.daemon.delivery.can_alarms import CanAlarmSink, Heartbeat, load_al
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings
-from bogiemon.daemon.delivery.schema import StatusMessage, status_from_monitor
+from bogiemon.daemon.delivery.status import status_from_monitor
+from bogiemon.daemon.messages import StatusMessage
 from bogiemon.daemon.events import Event
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.sinks import EventSink
-from bogiemon.daemon.store import OutboxCounts
+from bogiemon.daemon.outbox import OutboxCounts
 from bogiemon.drivers.candb import DbcError
 
 

@@ -22,7 +22,7 @@ import can
 import cantools
 import numpy as np
 
-from bogiemon.daemon.decision import INDICATOR_FIELDS
+from bogiemon.daemon.events import INDICATOR_FIELDS
 from bogiemon.daemon.events import Event, EventKind, Severity
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.sinks import EventSink

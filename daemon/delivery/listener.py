@@ -32,7 +32,7 @@ from typing import Generic, TypeVar
 
 from bogiemon.daemon.delivery.connection import ConnectionSettings, describe_connect_error, describe_refusal, is_auth_refusal
 from bogiemon.daemon.delivery.paho_transport import paho_transport
-from bogiemon.daemon.delivery.schema import (
+from bogiemon.daemon.messages import (
     STATE_OFFLINE,
     STATE_ONLINE,
     EventMessage,

@@ -39,7 +39,7 @@ from bogiemon.daemon.delivery.connection import (
     describe_refusal,
 )
 from bogiemon.daemon.delivery.paho_transport import paho_transport
-from bogiemon.daemon.delivery.schema import (
+from bogiemon.daemon.messages import (
     STATE_OFFLINE,
     STATE_ONLINE,
     SchemaError,
@@ -52,7 +52,8 @@ from bogiemon.daemon.delivery.schema import (
 )
 from bogiemon.daemon.delivery.transport import MqttTransport, Reason, TransportEvents, TransportFactory, Will
 from bogiemon.daemon.logs import get_logger
-from bogiemon.daemon.store import EventStore, OutboxCounts, PendingEvent, PendingStatus, StoreWriteError
+from bogiemon.daemon.store import EventStore, StoreWriteError
+from bogiemon.daemon.outbox import OutboxCounts, PendingEvent, PendingStatus
 from bogiemon.drivers.reconnect import Backoff
 
 StatusSource = Callable[[OutboxCounts, float], StatusMessage]  # (outbox counts, Unix seconds) -> status
@@ -393,7 +394,7 @@ class OutboxPublisher:
     def _next_item(self, store: EventStore, session: _Session, now_s: float) -> PendingEvent | PendingStatus | None:
         """The oldest pending event not yet sent on this session, else the oldest status record."""
         if not session.events and self._due(session.events_exhausted_s, now_s):
-            rows = store.pending_events(after_seq=session.read_event_seq, limit=FETCH_N)
+            rows = store.outbox.pending_events(after_seq=session.read_event_seq, limit=FETCH_N)
             session.events.extend(rows)
             session.events_exhausted_s = now_s if len(rows) < FETCH_N else None
             if rows:
@@ -401,7 +402,7 @@ class OutboxPublisher:
         if session.events:
             return session.events.popleft()
         if not session.status and self._due(session.status_exhausted_s, now_s):
-            status_rows = store.pending_status(after_seq=session.read_status_seq, limit=FETCH_N)
+            status_rows = store.outbox.pending_status(after_seq=session.read_status_seq, limit=FETCH_N)
             session.status.extend(status_rows)
             session.status_exhausted_s = now_s if len(status_rows) < FETCH_N else None
             if status_rows:
@@ -424,7 +425,7 @@ class OutboxPublisher:
     def _commit_acks(self, store: EventStore, session: _Session) -> None:
         if not session.acked_events and not session.acked_status:
             return
-        store.mark_delivered(session.acked_events, session.acked_status, self._wall_clock())
+        store.outbox.mark_delivered(session.acked_events, session.acked_status, self._wall_clock())
         self.counters.delivered_events += len(session.acked_events)
         self.counters.delivered_status += len(session.acked_status)
         session.acked_events.clear()
@@ -433,7 +434,7 @@ class OutboxPublisher:
     def _queue_status(self, store: EventStore) -> None:
         assert self.status_source is not None
         try:
-            message = self.status_source(store.outbox_counts(), self._wall_clock())
+            message = self.status_source(store.outbox.counts(), self._wall_clock())
             body = encode_status(message)
         except (SchemaError, ValidationError) as exc:  # the next period may fit again
             self.counters.unsendable_status += 1
@@ -443,12 +444,12 @@ class OutboxPublisher:
                 self._log.error("mqtt status not queued: it does not fit bogiemon.status/1", reason=problem)
             return
         self._last_status_problem = None
-        store.queue_status(message.time_s, body)
+        store.outbox.queue_status(message.time_s, body)
         self.counters.status_queued += 1
         self._wake.set()
 
     def _trim(self, store: EventStore) -> None:
-        dropped_status, dropped_events = store.trim_outbox(self.settings.outbox_max_messages, self._wall_clock())
+        dropped_status, dropped_events = store.outbox.trim_outbox(self.settings.outbox_max_messages, self._wall_clock())
         if dropped_status or dropped_events:
             self.counters.dropped_status += dropped_status
             self.counters.dropped_events += dropped_events
@@ -463,7 +464,7 @@ class OutboxPublisher:
                 session.read_event_seq = max([seq for kind, seq in session.inflight.values() if kind == "event"], default=0)
                 session.read_status_seq = max([seq for kind, seq in session.inflight.values() if kind == "status"], default=0)
                 session.events_exhausted_s = session.status_exhausted_s = None
-        self.outbox = store.outbox_counts()
+        self.outbox = store.outbox.counts()
 
 
 class _SessionEvents(TransportEvents):

@@ -28,8 +28,9 @@ import numpy as np
 
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.health import LONG_WAVE_PHASE_RAD, assess_window, learn_structure, rail_pair_coherence, same_rail_pair
-from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
+from bogiemon.daemon.health import LONG_WAVE_PHASE_RAD, assess_window, rail_pair_coherence, same_rail_pair
+from bogiemon.daemon.structure import learn_structure
+from bogiemon.daemon.verdict import MonitorSettings, WindowJudge
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, WindowIndicators
 from bogiemon.lab.robust.fleet import HEALTHY, RunSpec, damage_sensors, draw_conditions, scenario_for
 from bogiemon.lab.robust.wagons import make_wagon
@@ -131,7 +132,7 @@ class Margins:
             self.windows += 1
             hop = float(np.median(w.channels.hop_rms_min_mps2) / np.median(w.channels.hop_rms_max_mps2))
             self.hop_ratio_min = min(self.hop_ratio_min, hop)
-            c = rail_pair_coherence(w.spectra.matrix(), settings.geometry)
+            c = rail_pair_coherence(w.spectra.matrix, settings.geometry)
             if c is not None and c.phase_rad <= LONG_WAVE_PHASE_RAD:
                 self.premise += 1
                 self.rail_multiple_min = min(self.rail_multiple_min, c.multiple[i], c.multiple[k])

@@ -13,7 +13,7 @@ from typing import Any
 
 from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import BogiemonConfig, validate_config
-from bogiemon.daemon.monitor import MonitorSettings, WindowJudge
+from bogiemon.daemon.verdict import MonitorSettings, WindowJudge
 from bogiemon.detection import WindowIndicators
 from bogiemon.lab.robust.fleet import HEALTHY, EvaluationData, RunSpec, RunWindows
 

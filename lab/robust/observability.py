@@ -90,7 +90,7 @@ def power_shares(window: WindowIndicators, geometry: BogieGeometry) -> NDArray[n
     """Each mode's log share of its power over BANDS, per band in BANDS."""
     if window.spectra is None:
         return None
-    power = np.real(np.diagonal(modal_spectra(window.spectra.matrix()[list(BANDS)], geometry), axis1=1, axis2=2))  # (bands, 3)
+    power = np.real(np.diagonal(modal_spectra(window.spectra.matrix[list(BANDS)], geometry), axis1=1, axis2=2))  # (bands, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
         return _finite((np.log(power) - np.log(power.sum(axis=0, keepdims=True))).ravel())
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from bogiemon.drivers.atomic import write_text_atomically
 from bogiemon.lab.robust.fleet import DETECTION_HORIZON_S, SENSOR_DAMAGE, EvaluationData, fault_cells
 from bogiemon.lab.robust.score import CellScore, MethodScore
 
@@ -359,9 +360,9 @@ def write_report(
         "default_method": default.method,
         "methods": [score_json(s) for s in scores],
     }
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    write_text_atomically(out / "results.json", json.dumps(doc, indent=1) + "\n")
     written = render_figures(data, scores, default, out) if figures else []
-    (out / "README.md").write_text("\n".join(_readme(data, scores, command, elapsed_s, sections, written)) + "\n", encoding="utf-8")
+    write_text_atomically(out / "README.md", "\n".join(_readme(data, scores, command, elapsed_s, sections, written)) + "\n")
     return doc
 
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from bogiemon.drivers.atomic import write_text_atomically
 from bogiemon.detection import Corner
 from bogiemon.lab.robust.fleet import HISS_RMS_MPS2, SENSOR_DAMAGE, EvaluationData, EvaluationPlan
 from bogiemon.lab.robust.observability import FEATURE_SETS, CaseVisibility, summarize, visibility
@@ -236,8 +237,8 @@ def write_transfer_report(
             for j in judgements
         ],  # fmt: skip
     }
-    (out / "results.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-    (out / "README.md").write_text("\n".join(_readme(data, judgements, rows, command, elapsed_s, visible)) + "\n", encoding="utf-8")
+    write_text_atomically(out / "results.json", json.dumps(doc, indent=1) + "\n")
+    write_text_atomically(out / "README.md", "\n".join(_readme(data, judgements, rows, command, elapsed_s, visible)) + "\n")
     return doc
 
 

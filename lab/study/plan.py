@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from bogiemon.daemon.decision import INDICATOR_FIELDS
+from bogiemon.daemon.events import INDICATOR_FIELDS
 from bogiemon.detection import BogieGeometry, Corner
 from bogiemon.simulator.params import default_parameter_set
 from bogiemon.simulator.scenario import Scenario, SpeedProfile

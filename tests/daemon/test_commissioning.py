@@ -11,8 +11,8 @@ import pytest
 from bogiemon.daemon.calibrate import calibrate_loads, fragment
 from bogiemon.daemon.commissioning import LIMIT_MIN, fit_discriminant, fit_spread, runs_of, shrunk_covariance
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.models import nearest_load, shipped_models
-from bogiemon.daemon.monitor import WindowJudge
+from bogiemon.daemon.models import excitation_of, load_features, nearest_load, shipped_models
+from bogiemon.daemon.verdict import WindowJudge
 from bogiemon.detection import IndicatorStream
 from bogiemon.simulator import Scenario, simulate
 from bogiemon.simulator.params import default_parameter_set
@@ -70,7 +70,7 @@ def test_windows_of_other_runs_go_to_their_own_load_state(commissioned) -> None:
     for load, seed, track, speed in (("full", 21, "erri-low", 75.0), ("tare", 22, "fra-5", 70.0)):
         discriminant = config.load_discriminant()
         assert discriminant is not None and discriminant.separation >= 2 * discriminant.margin
-        got = [nearest_load(w, config.bogie_geometry(), states, discriminant)[0] for w in _windows(_scenario(load, seed, track, speed), config)]
+        got = [nearest_load(load_features(w, config.bogie_geometry()), excitation_of(w), states, discriminant)[0] for w in _windows(_scenario(load, seed, track, speed), config)]
         # Right, or not judged (between the states or unlike both); never the other load.
         assert got.count(load) >= 0.9 * len(got) and not set(got) - {load, None}, got
 
@@ -162,7 +162,7 @@ def test_a_window_gentler_than_the_whole_commissioning_is_not_judged(commissione
             judged = judge.judge(w)
             assert judged.judgement is None and judged.unfamiliar is not None
     states = config.load_signatures()
-    assert all(nearest_load(w, config.bogie_geometry(), states, config.load_discriminant())[0] is None for w in gentle)
+    assert all(nearest_load(load_features(w, config.bogie_geometry()), excitation_of(w), states, config.load_discriminant())[0] is None for w in gentle)
 
 
 def test_priors_can_come_from_another_folder_and_a_missing_one_is_a_clear_error(tmp_path: Path) -> None:

@@ -4,11 +4,14 @@ import dataclasses
 
 import pytest
 
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Level, Mode, Threshold
 from bogiemon.daemon.events import EventKind, Severity
-from bogiemon.detection import WindowIndicators
+from bogiemon.detection import BogieGeometry, WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 
+GEOMETRY = BogieGeometry()
+HOP_S = 10.0
 QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
 SETTINGS = DecisionSettings(
     thresholds={"full": {"i4_norm": Threshold(warning=0.1, alarm=0.2, center=0.05)}},
@@ -28,7 +31,7 @@ def window(i4_norm: float, t: float = 0.0) -> WindowIndicators:
 def run(decider: Decider, values: list[float]) -> list[tuple[int, EventKind]]:
     out = []
     for i, v in enumerate(values):
-        _, events = decider.update(window(v, t=10.0 * i), "full")
+        _, events = decider.update(window(v, t=10.0 * i), LoadState.FULL)
         out += [(i, e.kind) for e in events]
     return out
 
@@ -44,62 +47,62 @@ def test_levels_apply_to_the_deviation_from_the_center(value: float, level: Leve
 def test_confirmation_needs_k_of_the_last_n_alarm_windows() -> None:
     # warning, alarm (2 of 2 at warning or above: suspected), ok, alarm, ok, alarm (the 3rd alarm
     # within 5 judged windows: confirmed).
-    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.3, 0.0, 0.3, 0.0, 0.3])
+    events = run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.16, 0.3, 0.0, 0.3, 0.0, 0.3])
     assert events == [(1, EventKind.SUSPECTED), (5, EventKind.CONFIRMED)]
 
 
 def test_a_gross_fault_is_suspected_a_window_before_it_is_confirmed() -> None:
-    assert run(Decider(SETTINGS, "cfg"), [0.0, 0.3, 0.3, 0.3]) == [(2, EventKind.SUSPECTED), (3, EventKind.CONFIRMED)]
+    assert run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.0, 0.3, 0.3, 0.3]) == [(2, EventKind.SUSPECTED), (3, EventKind.CONFIRMED)]
 
 
 def test_alarms_spread_wider_than_n_never_confirm() -> None:
-    events = run(Decider(SETTINGS, "cfg"), [0.3, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.3])
+    events = run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.3, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.3])
     assert events == []
 
 
 def test_suspicion_needs_k_minus_one_of_the_last_n_windows_at_warning() -> None:
     # One warning window within five is the healthy wagon's scatter; a second within five is a suspicion.
-    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.0, 0.0, 0.0, 0.0, 0.16, 0.0, 0.0, 0.0, 0.16])
+    events = run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.16, 0.0, 0.0, 0.0, 0.0, 0.16, 0.0, 0.0, 0.0, 0.16])
     assert events == [(9, EventKind.SUSPECTED)]  # windows 5 and 9: two within five
 
 
 def test_single_warning_windows_never_raise_a_suspicion() -> None:
-    assert run(Decider(SETTINGS, "cfg"), [0.16, 0.0, 0.0, 0.0, 0.0, 0.16, 0.0, 0.0, 0.0, 0.0, 0.16]) == []
+    assert run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.16, 0.0, 0.0, 0.0, 0.0, 0.16, 0.0, 0.0, 0.0, 0.0, 0.16]) == []
 
 
 def test_with_one_window_to_confirm_one_window_suspects() -> None:
     settings = dataclasses.replace(SETTINGS, confirm_k=1, confirm_n=1)
-    assert run(Decider(settings, "cfg"), [0.0, 0.16, 0.3]) == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
+    assert run(Decider(settings, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.0, 0.16, 0.3]) == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
 
 
 def test_the_suspicion_states_how_many_windows_raised_it() -> None:
-    decider = Decider(SETTINGS, "cfg")
+    decider = Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     run(decider, [0.16, 0.0])
-    _, events = decider.update(window(0.16, t=20.0), "full")
+    _, events = decider.update(window(0.16, t=20.0), LoadState.FULL)
     (event,) = events
     assert event.kind is EventKind.SUSPECTED and event.details["warning_windows"] == "2 of 3"
 
 
 def test_clearing_needs_consecutive_windows_below_warning() -> None:
     # Confirm, then warning-level windows (below alarm) keep the alarm: hysteresis.
-    events = run(Decider(SETTINGS, "cfg"), [0.3, 0.3, 0.3, 0.16, 0.16, 0.0, 0.16, 0.0, 0.0])
+    events = run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.3, 0.3, 0.3, 0.16, 0.16, 0.0, 0.16, 0.0, 0.0])
     assert events == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED), (8, EventKind.CLEARED)]
 
 
 def test_a_suspicion_alone_clears_too() -> None:
-    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.16, 0.0, 0.0])
+    events = run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.16, 0.16, 0.0, 0.0])
     assert events == [(1, EventKind.SUSPECTED), (3, EventKind.CLEARED)]
 
 
 def test_a_cleared_suspicion_needs_new_warning_windows_again() -> None:
-    events = run(Decider(SETTINGS, "cfg"), [0.16, 0.16, 0.0, 0.0, 0.16, 0.0, 0.16])
+    events = run(Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S), [0.16, 0.16, 0.0, 0.0, 0.16, 0.0, 0.16])
     assert events == [(1, EventKind.SUSPECTED), (3, EventKind.CLEARED), (6, EventKind.SUSPECTED)]
 
 
 def test_confirmed_event_carries_the_indicators_that_fired_and_the_config_hash() -> None:
-    decider = Decider(SETTINGS, "abc123")
+    decider = Decider(SETTINGS, "abc123", geometry=GEOMETRY, hop_s=HOP_S)
     run(decider, [0.3, 0.3])
-    _, events = decider.update(window(-0.4, t=20.0), "full")
+    _, events = decider.update(window(-0.4, t=20.0), LoadState.FULL)
     (event,) = events
     assert event.kind is EventKind.CONFIRMED and event.severity is Severity.ALARM
     assert event.indicators == {"i4_norm": -0.4}
@@ -109,29 +112,29 @@ def test_confirmed_event_carries_the_indicators_that_fired_and_the_config_hash()
 
 
 def test_state_survives_a_round_trip_and_a_restart() -> None:
-    first = Decider(SETTINGS, "cfg")
+    first = Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     run(first, [0.16, 0.16, 0.0, 0.3, 0.3])
     saved = first.state.as_dict()
-    second = Decider(SETTINGS, "cfg", DecisionState.from_dict(saved))
+    second = Decider(SETTINGS, "cfg", DecisionState.from_dict(saved), geometry=GEOMETRY, hop_s=HOP_S)
     assert second.state.mode is Mode.SUSPECTED
-    _, events = second.update(window(0.3), "full")
+    _, events = second.update(window(0.3), LoadState.FULL)
     assert [e.kind for e in events] == [EventKind.CONFIRMED]
 
 
 def test_a_state_saved_before_the_warning_history_loads_with_none() -> None:
-    saved = Decider(SETTINGS, "cfg").state.as_dict()
+    saved = Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S).state.as_dict()
     del saved["recent_warnings"]
     state = DecisionState.from_dict(saved)
     assert list(state.recent_warnings) == [] and state.mode is Mode.NORMAL
 
 
 def test_nan_indicators_never_raise_a_level() -> None:
-    assert Decider(SETTINGS, "cfg").judge(window(float("nan")), "full").worst is Level.OK
+    assert Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S).judge(window(float("nan")), LoadState.FULL).worst is Level.OK
 
 
 def test_unknown_load_state_is_an_error() -> None:
     with pytest.raises(KeyError, match="tare"):
-        Decider(SETTINGS, "cfg").judge(window(0.0), "tare")
+        Decider(SETTINGS, "cfg", geometry=GEOMETRY, hop_s=HOP_S).judge(window(0.0), LoadState.TARE)
 
 
 def test_settings_reject_k_above_n_and_unknown_indicators() -> None:

@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bogiemon.daemon.decision import Decider, DecisionSettings, FusedSettings
+from bogiemon.daemon.vocabulary import LoadState, Method
+from bogiemon.daemon.decision import Decider, DecisionSettings
 from bogiemon.daemon.diagnosis import MIN_SCORE, NO_EVIDENCE, SIGN_BANDS, diagnose, healthy_covariance, judge_signs, raw_shift, sign_evidence
 from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.models import UNKNOWN, Baseline, Levels, whitening_of
@@ -183,7 +184,7 @@ def sensor_spectra(modal_coupling: np.ndarray, geometry: BogieGeometry) -> Windo
     for value, (_, i, j, band) in zip(modal_coupling, COUPLING_FEATURES, strict=True):
         modal[band, i, j] = modal[band, j, i] = value
     s = geometry.sensor_matrix()
-    return WindowSpectra.from_matrix(np.einsum("ai,bij,cj->bac", s, modal, s))
+    return WindowSpectra(BANDS_HZ, np.einsum("ai,bij,cj->bac", s, modal, s))
 
 
 def window(spectra: WindowSpectra, t_s: float) -> WindowIndicators:
@@ -197,16 +198,15 @@ def window(spectra: WindowSpectra, t_s: float) -> WindowIndicators:
 def test_the_decider_names_the_physical_corner_whatever_corners_the_sensors_are_on(layout: tuple[Corner, Corner, Corner]) -> None:
     geometry = BogieGeometry(corners=layout)
     b = Baseline("calibrated", np.zeros(N), whitening_of(covariance()), LEVELS, trend_tau_s=1800.0)
-    fused = FusedSettings({"full": b}, geometry, hop_s=10.0)
-    decider = Decider(DecisionSettings({}, confirm_k=3, confirm_n=5, method="fused", fused=fused), "cfg")
+    decider = Decider(DecisionSettings({}, confirm_k=3, confirm_n=5, method=Method.FUSED, baselines={LoadState.FULL: b}), "cfg", geometry=geometry, hop_s=10.0)
     physical = shift_of(Corner.TRAILING_RIGHT, "full", 8.0)  # a softer trailing-right corner, in every band read
     spectra = sensor_spectra(physical, geometry)
-    events = [e for i in range(3) for e in decider.update(window(spectra, 10.0 * i), "full")[1]]
+    events = [e for i in range(3) for e in decider.update(window(spectra, 10.0 * i), LoadState.FULL)[1]]
     (confirmed,) = [e for e in events if e.kind is EventKind.CONFIRMED]
     assert confirmed.details["diagnosis"]["corner"] == "trailing-right"
     # The channels themselves differ from the paper's layout's: only the modal map undoes them.
     paper = sensor_spectra(physical, BogieGeometry())
-    assert layout == LAYOUTS[0] or not np.allclose(spectra.matrix(), paper.matrix())
+    assert layout == LAYOUTS[0] or not np.allclose(spectra.matrix, paper.matrix)
 
 
 def test_roll_is_read_with_the_sign_of_the_left_rail_whatever_the_layout() -> None:
@@ -245,7 +245,7 @@ def commissioned():  # type: ignore[no-untyped-def]
 
 @pytest.mark.slow
 def test_a_simulated_broken_rear_coil_is_named_at_its_corner_or_unknown(commissioned) -> None:  # type: ignore[no-untyped-def]
-    from bogiemon.daemon.monitor import WindowJudge
+    from bogiemon.daemon.verdict import WindowJudge
     from bogiemon.detection import IndicatorStream
     from bogiemon.simulator import Fault, Scenario, SpeedProfile, simulate_batch
 

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from bogiemon.daemon.decision import FUSED_SCORE, FUSED_TREND, Decider, DecisionSettings, DecisionState, FusedSettings, Level, Mode
+from bogiemon.daemon.vocabulary import LoadState, Method, Mode
+from bogiemon.daemon.decision import FUSED_SCORE, FUSED_TREND, Decider, DecisionSettings, DecisionState, Level
 from bogiemon.daemon.events import EventKind
 from bogiemon.lab.modelfit import trend_runs
 from bogiemon.daemon.models import Baseline, Levels
@@ -28,7 +29,7 @@ def spectra_with_couplings(x: np.ndarray) -> WindowSpectra:
     for value, (_, i, j, band) in zip(x, COUPLING_FEATURES, strict=True):
         modal[band, i, j] = modal[band, j, i] = value
     s = GEOMETRY.sensor_matrix()  # channels = S modal
-    return WindowSpectra.from_matrix(np.einsum("ai,bij,cj->bac", s, modal, s))
+    return WindowSpectra(BANDS_HZ, np.einsum("ai,bij,cj->bac", s, modal, s))
 
 
 def window(x: np.ndarray, t_s: float = 0.0) -> WindowIndicators:
@@ -45,14 +46,13 @@ BASELINE = Baseline("calibrated", np.zeros(N), np.eye(N) * 10.0, LEVELS, trend_t
 
 
 def settings(baseline: Baseline = BASELINE) -> DecisionSettings:
-    fused = FusedSettings({"full": baseline}, GEOMETRY, HOP_S)
-    return DecisionSettings({}, confirm_k=3, confirm_n=5, clear_after_windows=2, method="fused", fused=fused)
+    return DecisionSettings({}, confirm_k=3, confirm_n=5, clear_after_windows=2, method=Method.FUSED, baselines={LoadState.FULL: baseline})
 
 
 def feed(decider: Decider, xs: list[np.ndarray]) -> list[tuple[int, EventKind, dict]]:
     out = []
     for i, x in enumerate(xs):
-        _, events = decider.update(window(x, HOP_S * i), "full")
+        _, events = decider.update(window(x, HOP_S * i), LoadState.FULL)
         out += [(i, e.kind, e.details) for e in events]
     return out
 
@@ -65,19 +65,19 @@ def test_the_designed_spectra_give_back_their_couplings() -> None:
 def test_the_window_score_is_the_squared_whitened_shift() -> None:
     x = np.zeros(N)
     x[0], x[5] = 0.5, -0.4
-    judgement = Decider(settings(), "cfg").judge(window(x), "full")
+    judgement = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S).judge(window(x), LoadState.FULL)
     assert judgement.values[FUSED_SCORE] == pytest.approx(100 * (0.5**2 + 0.4**2))  # 41
     assert judgement.levels[FUSED_SCORE] is Level.ALARM
     np.testing.assert_allclose(judgement.shift, 10 * x, atol=1e-9)
     assert judgement.alarm_ratio == pytest.approx(41.0 / 40.0)
     x[0] = 0.3  # 25: between the warning and the alarm level
-    assert Decider(settings(), "cfg").judge(window(x), "full").levels[FUSED_SCORE] is Level.WARNING
+    assert Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S).judge(window(x), LoadState.FULL).levels[FUSED_SCORE] is Level.WARNING
 
 
 def test_three_alarm_windows_of_five_confirm_by_windows() -> None:
     # Score 74.5 per window: alarm; 3.5 healthy sd at 4-8 Hz, where the diagnosis reads the signs.
     gross = np.array([0.35 if band == 3 else 0.25 for *_, band in COUPLING_FEATURES])
-    events = feed(Decider(settings(), "cfg"), [gross] * 3)
+    events = feed(Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S), [gross] * 3)
     kinds = [(i, k) for i, k, _ in events]
     assert kinds == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
     assert events[-1][2]["trigger"] == "windows"
@@ -89,7 +89,7 @@ def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> N
     # 4-8 Hz couplings, which the diagnosis reads, carry a little more of it (3.4 sd of the trend's
     # healthy spread: a clear sign).
     small = np.array([0.15 if band == 3 else 0.1 for *_, band in COUPLING_FEATURES])
-    decider = Decider(settings(), "cfg")
+    decider = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     events = feed(decider, [small] * 200)
     confirmed = [(i, d) for i, k, d in events if k is EventKind.CONFIRMED]
     assert len(confirmed) == 1
@@ -107,15 +107,15 @@ def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> N
 def test_healthy_scatter_around_the_center_never_alarms() -> None:
     rng = np.random.default_rng(1)
     xs = [rng.normal(0.0, 0.1, N) for _ in range(500)]  # z ~ N(0, I): score ~ chi2(10)
-    events = feed(Decider(settings(), "cfg"), xs)
+    events = feed(Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S), xs)
     assert not any(k is EventKind.CONFIRMED for _, k, _ in events)
 
 
 def test_the_decider_trend_equals_the_fitting_rule() -> None:
     rng = np.random.default_rng(2)
     runs = [rng.normal(0.05, 0.1, (n, N)) for n in (7, 13, 4)]
-    decider = Decider(settings(), "cfg")
-    got = [[decider.update(window(x), "full")[0].trend for x in run] for run in runs]
+    decider = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S)
+    got = [[decider.update(window(x), LoadState.FULL)[0].trend for x in run] for run in runs]
     want = trend_runs([10.0 * r for r in runs], HOP_S, tau_s=600.0)
     for g, w in zip(got, want, strict=True):
         np.testing.assert_allclose(g, w, rtol=1e-9)
@@ -123,22 +123,22 @@ def test_the_decider_trend_equals_the_fitting_rule() -> None:
 
 def test_the_trend_survives_a_restart_and_restarts_with_a_new_baseline() -> None:
     small = np.full(N, 0.1)
-    decider = Decider(settings(), "cfg")
+    decider = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     feed(decider, [small] * 20)
     saved = DecisionState.from_dict(decider.state.as_dict())
-    again = Decider(settings(), "cfg", saved)
-    before = decider.update(window(small), "full")[0].trend
-    after = again.update(window(small), "full")[0].trend
+    again = Decider(settings(), "cfg", saved, geometry=GEOMETRY, hop_s=HOP_S)
+    before = decider.update(window(small), LoadState.FULL)[0].trend
+    after = again.update(window(small), LoadState.FULL)[0].trend
     assert after == pytest.approx(before) and before > 0.5
     moved = Baseline("calibrated", np.full(N, 0.05), np.eye(N) * 10.0, LEVELS, trend_tau_s=600.0)
-    fresh = Decider(settings(moved), "cfg", DecisionState.from_dict(decider.state.as_dict()))
+    fresh = Decider(settings(moved), "cfg", DecisionState.from_dict(decider.state.as_dict()), geometry=GEOMETRY, hop_s=HOP_S)
     weight = 1 - math.exp(-HOP_S / 600.0)
     # Started from zero against the new center: one window's weight of the shift (0.5 per coupling).
-    assert fresh.update(window(small), "full")[0].trend == pytest.approx(N * (weight * 0.5) ** 2)
+    assert fresh.update(window(small), LoadState.FULL)[0].trend == pytest.approx(N * (weight * 0.5) ** 2)
 
 
 def test_a_cleared_alarm_needs_the_trend_back_below_its_warning() -> None:
-    decider = Decider(settings(), "cfg")
+    decider = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     feed(decider, [np.full(N, 0.1)] * 200)  # confirmed by the trend, which settles near 10
     assert decider.state.mode is Mode.CONFIRMED
     mean = np.asarray(decider.state.trend_mean["full"])
@@ -153,7 +153,7 @@ def test_a_cleared_alarm_needs_the_trend_back_below_its_warning() -> None:
 
 
 def test_the_confirmed_event_names_the_trend_and_its_levels() -> None:
-    decider = Decider(settings(), "cfg")
+    decider = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     events = feed(decider, [np.full(N, 0.25)] * 3)
     limits = events[-1][2]["thresholds"]
     assert limits[FUSED_TREND] == {"center": 0.0, "warning": 4.0, "alarm": 8.0}

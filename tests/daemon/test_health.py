@@ -7,22 +7,13 @@ import pytest
 
 from bogiemon.daemon.config import ConfigError, parse_config
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.health import (
-    LAYOUT_CHECKS,
-    Gate,
-    HealthSettings,
-    HealthTracker,
-    SensorProblem,
-    assess_window,
-    coherence_noisy_channel,
-    layout_problems,
-    learn_structure,
-    merge_structures,
-    same_rail_pair,
-)
+from bogiemon.daemon.gating import Gate
+from bogiemon.daemon.health import HealthSettings, SensorProblem, assess_window, coherence_noisy_channel, same_rail_pair
+from bogiemon.daemon.sensor_tracker import HealthTracker
+from bogiemon.daemon.structure import LAYOUT_CHECKS, LayoutFit, layout_fit, learn_structure, merge_structures
 from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
 from bogiemon.detection.channel_stats import NOT_MEASURED, ChannelStats
-from bogiemon.detection.spectra import N_BANDS, WindowSpectra
+from bogiemon.detection.spectra import BANDS_HZ, N_BANDS, WindowSpectra
 from bogiemon.drivers.base import SensorStatus
 
 SETTINGS = HealthSettings()
@@ -38,7 +29,7 @@ def window(
     return WindowIndicators(
         start_s=t, end_s=t + 60, i1=0, i2=0, i3=0, i4=0, i1_norm=0, i2_norm=0, i3_norm=0, i4_norm=0,
         rms_mps2=tuple(rms), rms_bounce_mps2=1, rms_pitch_radps2=1, rms_roll_radps2=1, channels=stats,
-        spectra=None if matrix is None else WindowSpectra.from_matrix(matrix),
+        spectra=None if matrix is None else WindowSpectra(BANDS_HZ, matrix),
     )  # fmt: skip
 
 
@@ -211,10 +202,8 @@ def test_a_window_gated_for_weak_excitation_is_not_judged_for_noise() -> None:
 def test_an_uncommissioned_wagon_has_no_layout_check_in_force() -> None:
     inverted = frame_matrix() * np.array([1.0, 1.0, -1.0])[None, :, None] * np.array([1.0, 1.0, -1.0])[None, None, :]
     assert SETTINGS.layout_checks == ()
-    assert layout_problems(window(matrix=inverted), GEOMETRY, SETTINGS) == {}
-    assert layout_problems(window(matrix=inverted), GEOMETRY, dataclasses.replace(SETTINGS, layout_checks=("low",))) == {
-        "a3": [SensorProblem.INVERTED]
-    }
+    assert layout_fit(inverted, GEOMETRY, SETTINGS) is None
+    assert layout_fit(inverted, GEOMETRY, dataclasses.replace(SETTINGS, layout_checks=("low",))) == LayoutFit((0, 1, 2), (1.0, 1.0, -1.0))
 
 
 def test_learn_structure_without_windows_puts_no_check_in_force() -> None:

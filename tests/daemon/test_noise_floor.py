@@ -68,8 +68,8 @@ def test_bands_without_power_are_skipped_and_none_left_is_no_floor() -> None:
 def test_white_noise_lifts_a_sensors_floor_to_its_density_and_leaves_the_others() -> None:
     hiss_mps2 = 0.4  # per sample at 500 Hz: a density of 0.4^2 / 250 Hz
     density = hiss_mps2**2 / (FS_HZ / 2)
-    healthy = np.array([noise_floors(w.spectra.matrix(), BANDS_HZ) for w in frame_run(7)])
-    noisy = np.array([noise_floors(w.spectra.matrix(), BANDS_HZ) for w in frame_run(7, hiss_mps2=(0.0, hiss_mps2, 0.0))])
+    healthy = np.array([noise_floors(w.spectra.matrix, BANDS_HZ) for w in frame_run(7)])
+    noisy = np.array([noise_floors(w.spectra.matrix, BANDS_HZ) for w in frame_run(7, hiss_mps2=(0.0, hiss_mps2, 0.0))])
     assert np.all(noisy[:, 1] > 0.8 * density) and np.all(noisy[:, 1] < 1.2 * density)
     assert np.all(healthy[:, 1] < 0.01 * density)
     np.testing.assert_allclose(noisy[:, [0, 2]], healthy[:, [0, 2]], rtol=0.5)
@@ -78,7 +78,7 @@ def test_white_noise_lifts_a_sensors_floor_to_its_density_and_leaves_the_others(
 def test_commissioning_learns_each_channels_smallest_floor_and_largest_ratio_to_the_others() -> None:
     windows = frame_run(1)
     fit = learn_noise_floor(windows)
-    floors = np.array([noise_floors(w.spectra.matrix(), BANDS_HZ) for w in windows])
+    floors = np.array([noise_floors(w.spectra.matrix, BANDS_HZ) for w in windows])
     others = np.array([[np.sqrt(f[(c + 1) % 3] * f[(c + 2) % 3]) for c in range(3)] for f in floors])
     assert fit is not None and fit.windows == len(windows)
     np.testing.assert_allclose(fit.psd, floors.min(axis=0))
@@ -106,10 +106,10 @@ def test_a_stuck_sensor_does_not_make_the_others_look_noisy() -> None:
     stuck = frame_run(13, hiss_mps2=(0.0, 0.0, 0.0))
     for w in stuck:
         frozen = dataclasses.replace(w.channels, repeat_fraction=(0.0, 0.9, 0.0))
-        matrix = w.spectra.matrix()
+        matrix = w.spectra.matrix.copy()
         matrix[:, 1, :] *= 1e-4  # a2 holds still: next to nothing left of it in any band
         matrix[:, :, 1] *= 1e-4
-        held = dataclasses.replace(w, channels=frozen, spectra=WindowSpectra.from_matrix(matrix, BANDS_HZ))
+        held = dataclasses.replace(w, channels=frozen, spectra=WindowSpectra(BANDS_HZ, matrix))
         assert assess_window(held, health, geometry=GEOMETRY).problems == {"a2": (SensorProblem.STUCK,)}
 
 
@@ -149,5 +149,5 @@ def test_floors_need_one_value_per_channel_each(fields: dict) -> None:
 def test_a_window_built_without_the_noise_floor_bands_still_has_a_floor() -> None:
     # Records of the judged bands only (built by hand, or older): the floor of what they hold.
     matrix = np.tile(np.diag([1e-3, 2e-3, 3e-3]).astype(np.complex128), (7, 1, 1))
-    spectra = WindowSpectra.from_matrix(matrix, BANDS_HZ[:8])
-    assert noise_floors(spectra.matrix(), spectra.bands_hz) is not None
+    spectra = WindowSpectra(BANDS_HZ[:8], matrix)
+    assert noise_floors(spectra.matrix, spectra.bands_hz) is not None

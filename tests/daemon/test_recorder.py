@@ -14,7 +14,8 @@ import structlog
 
 from bogiemon.daemon.config import BogiemonConfig, load_config, parse_config
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.monitor import Monitor, WindowReport
+from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.service import Service
@@ -45,7 +46,7 @@ class Run:
         settings = config.recorder_settings()
         assert settings is not None
         self.recorder = recorder or Recorder(settings)
-        self.reports: list[WindowReport] = []
+        self.reports: list[WindowVerdict] = []
         self.monitor = Monitor(
             config.monitor_settings(), EventStore(tmp_path / "state"), observers=[self.reports.append, self.recorder.on_window],
             taps=[self.recorder.on_block],

@@ -64,13 +64,21 @@ def test_backpressure_waits_for_room_instead_of_dropping() -> None:
     reader.join()
 
 
-def test_memory_is_allocated_once() -> None:
-    ring = BlockRing(1000)
-    buffer = ring._samples
-    for i in range(500):
-        ring.put(block(i * 7, 7))
-        ring.get(timeout_s=0)
-    assert ring._samples is buffer and buffer.shape == (1000, 3)
+def test_blocks_pass_without_a_copy_and_the_ring_holds_at_most_its_capacity() -> None:
+    ring = BlockRing(20, max_blocks=3)
+    sent = [block(i * 7, 7) for i in range(4)]
+    assert [ring.put(b) for b in sent] == [True, True, False, False]  # 14 samples held; a third block would make 21
+    first = ring.get(timeout_s=0)
+    assert first is sent[0] and first.accel_mps2 is sent[0].accel_mps2
+    assert ring.put(sent[2]) and ring.put(block(28, 7)) is False  # 14 + 7 > 20: dropped
+    second, third = ring.get(timeout_s=0), ring.get(timeout_s=0)
+    assert second is sent[1]
+    assert third.accel_mps2 is sent[2].accel_mps2 and third.gap_before  # after a drop: the same samples, a gap
+
+
+def test_the_ring_holds_at_most_max_blocks() -> None:
+    ring = BlockRing(1000, max_blocks=2)
+    assert [ring.put(block(i, 1)) for i in range(3)] == [True, True, False]
 
 
 def test_get_times_out_empty_and_raises_once_closed_and_drained() -> None:

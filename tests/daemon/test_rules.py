@@ -10,6 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
+from bogiemon.daemon.vocabulary import LoadState
+from bogiemon.detection import BogieGeometry
 from bogiemon.daemon.decision import Decider, DecisionSettings
 from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.rules import Level, Threshold, first_confirmation, fit_threshold, level_of, suspicion_k, sustained_level
@@ -89,10 +91,10 @@ def test_first_confirmation_of_a_run_is_where_the_deciders_state_machine_confirm
     # The Decider also clears its history after clear_after_windows clean windows; with
     # clear_after_windows >= n (the defaults: 6 and 5) that never drops an alarm still in the last n.
     decision = DecisionSettings({"full": {"i4_norm": Threshold(warning=0.5, alarm=0.5)}}, k, n, clear_after_windows=n)
-    decider = Decider(decision, "test")
+    decider = Decider(decision, "test", geometry=BogieGeometry(), hop_s=10.0)
     confirmed_at = None
     for i, alarm in enumerate(alarms):
-        _, events = decider.update(_window(1.0 if alarm else 0.0, 10.0 * i), "full")
+        _, events = decider.update(_window(1.0 if alarm else 0.0, 10.0 * i), LoadState.FULL)
         if confirmed_at is None and any(e.kind is EventKind.CONFIRMED for e in events):
             confirmed_at = i
     assert first_confirmation(alarms, k, n) == confirmed_at

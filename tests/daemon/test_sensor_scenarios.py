@@ -14,8 +14,10 @@ import pytest
 
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.health import Gate, learn_structure
-from bogiemon.daemon.monitor import JudgedWindow, Monitor, MonitorSettings, WindowJudge
+from bogiemon.daemon.gating import Gate
+from bogiemon.daemon.structure import learn_structure
+from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.verdict import MonitorSettings, WindowJudge, WindowVerdict
 from bogiemon.daemon.store import EventStore
 from bogiemon.detection import IndicatorStream, WindowIndicators
 from bogiemon.detection.channel_stats import channel_stats_reference
@@ -130,7 +132,7 @@ STOP_AND_START = "0:60,60:60,90:0,150:0,180:60,300:60"  # braking to a stop at 9
 LSB_MPS2 = 2 * 16 * 9.80665 / 65536
 
 
-def judged_windows(accel: np.ndarray, settings: MonitorSettings | None = None) -> list[tuple[WindowIndicators, JudgedWindow]]:
+def judged_windows(accel: np.ndarray, settings: MonitorSettings | None = None) -> list[tuple[WindowIndicators, WindowVerdict]]:
     """Every window of a recording with what the daemon's WindowJudge said of it."""
     settings = settings or BogiemonConfig().monitor_settings()
     judge = WindowJudge(settings)
@@ -138,7 +140,7 @@ def judged_windows(accel: np.ndarray, settings: MonitorSettings | None = None) -
     return [(w, judge.judge(w)) for w in core.process(accel)]
 
 
-def reported(judged: list[tuple[WindowIndicators, JudgedWindow]]) -> dict[str, set[str]]:
+def reported(judged: list[tuple[WindowIndicators, WindowVerdict]]) -> dict[str, set[str]]:
     """channel -> the problems any window named on it."""
     out: dict[str, set[str]] = {}
     for _, j in judged:
@@ -242,3 +244,4 @@ def test_a_swapped_pair_is_found_with_the_learned_structure_and_not_without_one(
     assert reported(judged_windows(swapped, learned)) == {"a1": {"swapped"}, "a2": {"swapped"}}
     uncommissioned = reported(judged_windows(swapped, settings))
     assert not {p for problems in uncommissioned.values() for p in problems} & {"swapped", "inverted"}
+

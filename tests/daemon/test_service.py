@@ -170,3 +170,4 @@ def test_sighup_after_include_5_and_after_window_s_inf_keeps_the_daemon_on_its_o
     assert not any(r["event"] == "reloaded" for r in logged)
     stored = EventStore(tmp_path / "state", readonly=True).events()
     assert [(e.kind.value, e.config_hash) for e in stored] == [("SUSPECTED", old_digest), ("CONFIRMED", old_digest)]
+

@@ -24,7 +24,8 @@ import pytest
 from bogiemon.daemon.config import parse_config
 from bogiemon.daemon.events import Event, EventKind, Severity
 from bogiemon.daemon.logs import configure_logging
-from bogiemon.daemon.monitor import Monitor, WindowReport
+from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.service import EXIT_OK, EXIT_STORE_FAILED, Service
@@ -131,7 +132,7 @@ def test_a_monitor_holds_what_a_full_disk_refuses_and_commits_and_reports_it_in_
     sink = Recorder(after_n=1, action=disk.fill)  # the disk fills right after the first event
     reported_while_full: list[int] = []
 
-    def free_after_three_failures(report: WindowReport) -> None:
+    def free_after_three_failures(report: WindowVerdict) -> None:
         if disk.full:
             reported_while_full.append(len(sink.events))
             if monitor.store_failures == 3:
@@ -152,11 +153,11 @@ def test_a_monitor_holds_what_a_store_turned_read_only_refuses_and_commits_it_on
     log = io.StringIO()
     configure_logging(log)
     store = EventStore(tmp_path)
-    sink = Recorder(after_n=1, action=lambda: store._db.execute("PRAGMA query_only=1"))
+    sink = Recorder(after_n=1, action=lambda: store.connection.execute("PRAGMA query_only=1"))
 
-    def writable_after_two_failures(report: WindowReport) -> None:
+    def writable_after_two_failures(report: WindowVerdict) -> None:
         if monitor.store_failures == 2:
-            store._db.execute("PRAGMA query_only=0")
+            store.connection.execute("PRAGMA query_only=0")
 
     monitor = Monitor(parse_config(CONFIG_TEXT, "t").monitor_settings(), store, [sink], [writable_after_two_failures], hold_uncommitted=True)
     feed(monitor, signals())
@@ -169,7 +170,7 @@ def test_a_monitor_holds_what_a_store_turned_read_only_refuses_and_commits_it_on
 
 def test_a_monitor_stops_with_a_store_write_error_once_it_holds_more_than_its_bound(tmp_path: Path) -> None:
     store = EventStore(tmp_path)
-    sink = Recorder(after_n=1, action=lambda: store._db.execute("PRAGMA query_only=1"))
+    sink = Recorder(after_n=1, action=lambda: store.connection.execute("PRAGMA query_only=1"))
     monitor = Monitor(parse_config(CONFIG_TEXT, "t").monitor_settings(), store, [sink], hold_uncommitted=True, max_held_events=0)
     with pytest.raises(StoreWriteError, match=r"1 events could not be committed, more than the 0 held in memory: stopping"):
         feed(monitor, signals())
@@ -248,7 +249,7 @@ def test_the_service_on_a_disk_that_fills_logs_crit_tells_systemd_and_loses_noth
     state = disk.root / "state"
     sink = Recorder(after_n=1, action=disk.fill)
 
-    def free_once_systemd_was_told(report: WindowReport) -> None:
+    def free_once_systemd_was_told(report: WindowVerdict) -> None:
         # The disk stays full until STATUS said so (the main thread tells it within a tick).
         deadline = time.monotonic() + 20
         while disk.full and crit_lines(log) and time.monotonic() < deadline:

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.events import Event, EventKind, Severity
-from bogiemon.daemon.store import EventStore, OutboxCounts, StoreError, StoreWriteError
+from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
+from bogiemon.daemon.outbox import OutboxCounts
 
 
 def event(t: float, kind: EventKind = EventKind.SUSPECTED) -> Event:
@@ -29,8 +30,8 @@ def test_events_round_trip_in_commit_order(tmp_path: Path) -> None:
 
 def test_the_database_is_in_wal_mode_with_full_sync(tmp_path: Path) -> None:
     store = EventStore(tmp_path)
-    assert store._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-    assert store._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+    assert store.connection.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert store.connection.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
 
 
 def test_state_is_committed_with_the_events(tmp_path: Path) -> None:
@@ -104,8 +105,8 @@ def test_a_version_1_file_migrates_to_2_with_its_events_pending(tmp_path: Path) 
     store = EventStore(tmp_path)
     assert store.schema_version == 2
     assert store.events() == [old]
-    assert [p.event for p in store.pending_events()] == [old]
-    assert store.outbox_counts() == OutboxCounts(pending_events=1, pending_alarms=1, pending_status=0, dropped_events=0, dropped_status=0)
+    assert [p.event for p in store.outbox.pending_events()] == [old]
+    assert store.outbox.counts() == OutboxCounts(pending_events=1, pending_alarms=1, pending_status=0, dropped_events=0, dropped_status=0)
 
 
 def test_a_store_of_a_newer_schema_is_refused(tmp_path: Path) -> None:
@@ -131,23 +132,23 @@ def test_pending_events_go_oldest_first_until_marked_delivered_and_that_is_durab
     store = EventStore(tmp_path)
     sent = [event(float(i)) for i in range(5)]
     store.append(sent)
-    pending = store.pending_events()
+    pending = store.outbox.pending_events()
     assert [p.event for p in pending] == sent
     assert [p.seq for p in pending] == sorted(p.seq for p in pending)
-    assert [p.event for p in store.pending_events(after_seq=pending[1].seq, limit=2)] == sent[2:4]
-    store.mark_delivered([pending[0].seq, pending[2].seq], [], delivered_s=100.0)
+    assert [p.event for p in store.outbox.pending_events(after_seq=pending[1].seq, limit=2)] == sent[2:4]
+    store.outbox.mark_delivered([pending[0].seq, pending[2].seq], [], delivered_s=100.0)
     store.close()
     again = EventStore(tmp_path)
-    assert [p.event for p in again.pending_events()] == [sent[1], sent[3], sent[4]]
+    assert [p.event for p in again.outbox.pending_events()] == [sent[1], sent[3], sent[4]]
     assert again.events() == sent  # delivery never removes an event from the store
 
 
 def test_status_records_wait_in_order_and_go_once_delivered(tmp_path: Path) -> None:
     store = EventStore(tmp_path)
-    seqs = [store.queue_status(float(i), f'{{"n": {i}}}') for i in range(3)]
-    assert [(s.time_s, s.body) for s in store.pending_status()] == [(0.0, '{"n": 0}'), (1.0, '{"n": 1}'), (2.0, '{"n": 2}')]
-    store.mark_delivered([], seqs[:2], delivered_s=10.0)
-    assert [s.seq for s in store.pending_status()] == seqs[2:]
+    seqs = [store.outbox.queue_status(float(i), f'{{"n": {i}}}') for i in range(3)]
+    assert [(s.time_s, s.body) for s in store.outbox.pending_status()] == [(0.0, '{"n": 0}'), (1.0, '{"n": 1}'), (2.0, '{"n": 2}')]
+    store.outbox.mark_delivered([], seqs[:2], delivered_s=10.0)
+    assert [s.seq for s in store.outbox.pending_status()] == seqs[2:]
 
 
 def test_the_outbox_bound_drops_status_first_then_events_that_are_not_alarms_and_never_alarms(tmp_path: Path) -> None:
@@ -155,16 +156,16 @@ def test_the_outbox_bound_drops_status_first_then_events_that_are_not_alarms_and
     kinds = [EventKind.SUSPECTED, EventKind.CONFIRMED, EventKind.SENSOR_FAULT, EventKind.CLEARED, EventKind.SENSOR_CLEARED]
     events = [event(float(i), kind) for i, kind in enumerate(kinds)]
     store.append(events)
-    status = [store.queue_status(float(i), "{}") for i in range(4)]
-    assert store.trim_outbox(max_messages=9, now_s=1.0) == (0, 0)
-    assert store.trim_outbox(max_messages=7, now_s=1.0) == (2, 0)  # the two oldest status records
-    assert [s.seq for s in store.pending_status()] == status[2:]
-    assert store.trim_outbox(max_messages=4, now_s=2.0) == (2, 1)  # all status, then the oldest non-alarm
-    assert [p.event.kind for p in store.pending_events()] == kinds[1:]
-    assert store.trim_outbox(max_messages=0, now_s=3.0) == (0, 2)  # the alarms stay, over the bound
-    assert [p.event.kind for p in store.pending_events()] == [EventKind.CONFIRMED, EventKind.CLEARED]
+    status = [store.outbox.queue_status(float(i), "{}") for i in range(4)]
+    assert store.outbox.trim_outbox(max_messages=9, now_s=1.0) == (0, 0)
+    assert store.outbox.trim_outbox(max_messages=7, now_s=1.0) == (2, 0)  # the two oldest status records
+    assert [s.seq for s in store.outbox.pending_status()] == status[2:]
+    assert store.outbox.trim_outbox(max_messages=4, now_s=2.0) == (2, 1)  # all status, then the oldest non-alarm
+    assert [p.event.kind for p in store.outbox.pending_events()] == kinds[1:]
+    assert store.outbox.trim_outbox(max_messages=0, now_s=3.0) == (0, 2)  # the alarms stay, over the bound
+    assert [p.event.kind for p in store.outbox.pending_events()] == [EventKind.CONFIRMED, EventKind.CLEARED]
     store.close()
-    counts = EventStore(tmp_path).outbox_counts()  # the drop counts survive a restart
+    counts = EventStore(tmp_path).outbox.counts()  # the drop counts survive a restart
     assert counts == OutboxCounts(pending_events=2, pending_alarms=2, pending_status=0, dropped_events=3, dropped_status=4)
 
 
@@ -254,21 +255,21 @@ def test_a_new_store_leaves_no_scratch_file_behind(tmp_path: Path) -> None:
 def test_a_commit_the_disk_cannot_take_is_a_store_write_error_that_leaves_nothing(tmp_path: Path) -> None:
     sent = filled_store(tmp_path, n=5)
     store = EventStore(tmp_path)
-    pages = store._db.execute("PRAGMA page_count").fetchone()[0]
-    store._db.execute(f"PRAGMA max_page_count={pages}")  # SQLite's own SQLITE_FULL, as on a full disk
+    pages = store.connection.execute("PRAGMA page_count").fetchone()[0]
+    store.connection.execute(f"PRAGMA max_page_count={pages}")  # SQLite's own SQLITE_FULL, as on a full disk
     burst = [replace_details(event(2e9 + i), i) for i in range(300)]
     with pytest.raises(StoreWriteError, match=r"events\.sqlite3: cannot commit to the event store: database or disk is full"):
         store.append(burst, state={"monitor": {"n": -1}})
     assert store.events() == sent
     assert store.get_state("monitor") == {"n": sent[-1].time_s}
-    store._db.execute(f"PRAGMA max_page_count={10 * pages}")
+    store.connection.execute(f"PRAGMA max_page_count={10 * pages}")
     store.append(burst[:1])  # the refused transaction is gone: the next one starts cleanly
     assert store.events() == [*sent, burst[0]]
 
 
 def test_a_commit_on_a_store_that_turned_read_only_is_a_store_write_error_naming_it(tmp_path: Path) -> None:
     store = EventStore(tmp_path)
-    store._db.execute("PRAGMA query_only=1")  # SQLite refuses every write, as on media remounted read-only
+    store.connection.execute("PRAGMA query_only=1")  # SQLite refuses every write, as on media remounted read-only
     with pytest.raises(StoreWriteError, match=r"cannot commit to the event store: attempt to write a readonly database \(the state directory .+ is read-only"):
         store.append([event(1.0)])
     assert store.count() == 0

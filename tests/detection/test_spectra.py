@@ -33,7 +33,7 @@ def test_the_streaming_band_matrix_equals_welch_csd_of_each_window(hops_per_wind
     assert len(got) == 4
     for k, window in enumerate(got):
         want = spectra_reference(x[k * hop_n : (k + hops_per_window) * hop_n], hop_n, FS_HZ)
-        np.testing.assert_allclose(window.matrix(), want.matrix(), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(window.matrix, want.matrix, rtol=1e-9, atol=1e-12)
 
 
 def test_a_sine_puts_its_mean_square_into_its_band() -> None:
@@ -53,7 +53,7 @@ def test_a_delayed_copy_gives_a_positive_imaginary_cross_spectrum() -> None:
     delay_n = 2
     x = np.column_stack([a, np.r_[np.zeros(delay_n), a[:-delay_n]], rng.standard_normal(20_000)])
     (window,) = stream_windows(x[:10_000], 2, 5_000)
-    coh = coherency(window.matrix())
+    coh = coherency(window.matrix)
     # a_2(t) = a_1(t - d): S_12 = X_1 conj(X_2) has a positive phase, growing with frequency.
     assert np.all(coh[2:6, 0, 1].imag > 0)
     assert np.all(np.abs(coh[:6, 0, 1]) > 0.95)
@@ -66,7 +66,7 @@ def test_identical_channels_are_fully_coherent_and_the_matrix_is_hermitian() -> 
     a = rng.standard_normal(10_000)
     x = np.column_stack([a, 2.0 * a, -a])
     (window,) = stream_windows(x, 2, 5_000)
-    m = window.matrix()
+    m = window.matrix
     np.testing.assert_allclose(m, np.conj(np.transpose(m, (0, 2, 1))))
     coh = coherency(m)
     np.testing.assert_allclose(coh[:, 0, 1].real, 1.0, atol=1e-12)

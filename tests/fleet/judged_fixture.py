@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from bogiemon.daemon.delivery.schema import encode_event
+from bogiemon.daemon.messages import encode_event
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
 
 HOP_S = 10.0  # the daemon's default hop between windows
@@ -141,7 +141,7 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                 cols["trend"].append(trend if judged else nan)
                 for name in ("warning", "alarm", "trend_warning", "trend_alarm"):
                     cols[name].append(lv[name] if judged else nan)
-                cols["mode"].append(mode)
+                cols["mode"].append(mode.lower())  # the series holds the daemon's words
                 cols["gate"].append(gate)
                 cols["sensor_problems"].append("a3 noisy" if faulty else "")
                 i += 1
@@ -169,7 +169,7 @@ def _summary(w: _Wagon, seqs: list[int]) -> dict[str, Any]:
     elif w.reported_fault:
         state = "SENSOR_FAULT"
     else:
-        state = cols["mode"][-1]
+        state = cols["mode"][-1].upper()
     last_judged = max((k for k in range(n) if judged[k]), default=None)
     trend = None if last_judged is None else round(cols["trend"][last_judged], 4)
     trend_alarm = None if last_judged is None else cols["trend_alarm"][last_judged]
@@ -261,7 +261,7 @@ def write_judged(
     if sort:
         entries.sort(key=lambda e: -e["attention"])
     doc = {
-        "format": 1,
+        "format": 2,
         "generated_utc": "2026-12-02T10:00:00Z",
         "fleet": fleet,
         "wagons": entries,

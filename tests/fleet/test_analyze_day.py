@@ -31,7 +31,7 @@ def test_a_recordings_windows_are_those_of_bogiemon_analyze(tmp_path: Path, runs
     expected = list(analyze_recording(open_recording(placed, task.config), task.config))
     assert rows.from_table(table) == expected
     recording = read_csv_recording(placed)
-    assert meta["segment_starts"] == [[float(recording.time_s[0]), recording.fs_hz]]
+    assert meta["segment_starts"] == [[float(recording.time_s[0]), recording.fs_hz, False]]
 
 
 def test_overlapping_snapshots_give_each_sample_once(tmp_path: Path, runs: tree.Runs) -> None:

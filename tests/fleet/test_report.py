@@ -263,7 +263,7 @@ def _mutated(tmp_path: Path, change) -> Path:
         (lambda d: d["wagons"][2].update(days="two"), r"wagons\[2\]\.days: expected an integer"),
         (lambda d: d["wagons"][2].update(state="BROKEN"), r"wagons\[2\]\.state: 'BROKEN' is none of"),
         (lambda d: d["wagons"][2].update(wagon=d["wagons"][0]["wagon"]), r"wagons\[2\]: wagon '31-80-4557-003' is listed twice"),
-        (lambda d: d.update(format=2), r"wagons\.json: format 2, this bogiemon reads format 1"),
+        (lambda d: d.update(format=1), r"wagons\.json: format 1, this bogiemon reads format 2"),
     ],
     ids=["wagon-field", "top-field", "last-event-field", "diagnosis-field", "type", "state", "duplicate", "format"],
 )
@@ -276,7 +276,7 @@ def test_a_wagons_json_off_the_contract_is_one_line_naming_the_file_and_field(tm
 
 
 def test_wagons_json_that_is_not_json_is_a_report_error(judged: Path, tmp_path: Path) -> None:
-    (judged / "wagons.json").write_text('{"format": 1, "wagons": [', encoding="utf-8")
+    (judged / "wagons.json").write_text('{"format": 2, "wagons": [', encoding="utf-8")
     with pytest.raises(ReportError, match=r"wagons\.json: not valid JSON \("):
         write_report(judged, tmp_path / "r.html")
 

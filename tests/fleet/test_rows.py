@@ -10,6 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings
+from bogiemon.drivers.base import SensorStatus
 from bogiemon.fleet import rows
 
 
@@ -20,22 +21,24 @@ def _windows(seed: int, n: int = 6):  # type: ignore[no-untyped-def]
     return IndicatorStream(settings, BogieGeometry(), 1.79e9).process(samples)
 
 
-def _context(n: int) -> list[dict[str, object]]:
-    return [{"recording": "r.csv", "segment": 0, "status_0": 0, "status_1": 2, "status_2": 0, "gate": "", "problems": "", "p_full": 0.5}] * n
+def _table(windows):  # type: ignore[no-untyped-def]
+    n = len(windows)
+    ok, fault = SensorStatus.OK, SensorStatus.SENSOR_FAULT
+    return rows.to_table(windows, ["r.csv"] * n, [0] * n, [(ok, fault, ok)] * n)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_windows_survive_a_parquet_round_trip_exactly(seed: int) -> None:
     windows = _windows(seed)
     buffer = io.BytesIO()
-    pq.write_table(rows.to_table(windows, _context(len(windows))), buffer, compression="zstd")
+    pq.write_table(_table(windows), buffer, compression="zstd")
     back = rows.from_table(pq.read_table(io.BytesIO(buffer.getvalue())))
     assert back == windows  # dataclass equality: every float identical
 
 
 def test_status_bits_come_back_per_channel() -> None:
     windows = _windows(0, n=2)
-    status = rows.status_of(rows.to_table(windows, _context(2)))
+    status = rows.status_of(_table(windows))
     assert [int(s) for s in status[0]] == [0, 2, 0]
 
 
@@ -46,5 +49,5 @@ def test_a_table_without_the_window_columns_is_refused() -> None:
 
 def test_contexts_must_match_the_windows() -> None:
     windows = _windows(0, n=2)
-    with pytest.raises(ValueError, match="2 windows and 1 contexts"):
-        rows.to_table(windows, _context(1))
+    with pytest.raises(ValueError, match="2 windows, 1 recordings"):
+        rows.to_table(windows, ["r.csv"], [0, 0], [(SensorStatus.OK,) * 3] * 2)

@@ -11,7 +11,7 @@ import pytest
 
 from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.monitor import WindowJudge
+from bogiemon.daemon.verdict import WindowJudge
 from bogiemon.detection import Corner, IndicatorStream
 from bogiemon.lab.robust.fleet import EXPECTED_PROBLEM, HEALTHY, SENSOR_DAMAGE, RunSpec, damage_sensors, scenario_for
 from bogiemon.lab.robust.wagons import make_wagon

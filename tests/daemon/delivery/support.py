@@ -17,10 +17,11 @@ from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.listener import Listener
 from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings
-from bogiemon.daemon.delivery.schema import OutboxStatus, StatusMessage
+from bogiemon.daemon.messages import OutboxStatus, StatusMessage
 from bogiemon.daemon.delivery.transport import TransportFactory
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.daemon.store import EventStore, OutboxCounts
+from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.outbox import OutboxCounts
 
 WAGON = "318045331234"
 PREFIX = "fleet/test"

@@ -8,7 +8,7 @@ import pytest
 
 from bogiemon.daemon.config import ConfigError, parse_config
 from bogiemon.daemon.delivery import Delivery
-from bogiemon.daemon.delivery.schema import OutboxStatus, StatusMessage
+from bogiemon.daemon.messages import OutboxStatus, StatusMessage
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.store import EventStore
 from tests.daemon.delivery.support import WAGON
@@ -65,7 +65,7 @@ def test_the_mqtt_unit_is_bogiemon_service_plus_the_network_and_the_credentials(
 
 
 def test_docs_mqtt_md_documents_every_field_of_both_schemas() -> None:
-    from bogiemon.daemon.delivery.schema import EventMessage, LatestWindow
+    from bogiemon.daemon.messages import EventMessage, LatestWindow
 
     doc = (Path(__file__).resolve().parents[3] / "docs" / "mqtt.md").read_text()
     names = [f"`{field.alias or name}`" for model in (EventMessage, StatusMessage) for name, field in model.model_fields.items()]

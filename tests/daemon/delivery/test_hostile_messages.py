@@ -26,7 +26,7 @@ from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.listener import RECENT_STATUSES, Listener, ListenError, Received, ReceivedStore, parse_message
 from bogiemon.daemon.delivery.memory_transport import MemoryBroker, MemoryTransport
 from bogiemon.daemon.delivery.publisher import OutboxPublisher
-from bogiemon.daemon.delivery.schema import (
+from bogiemon.daemon.messages import (
     EventMessage,
     LatestWindow,
     MAX_PAYLOAD_BYTES,
@@ -42,7 +42,8 @@ from bogiemon.daemon.delivery.schema import (
 )
 from bogiemon.daemon.delivery.transport import TransportEvents
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
-from bogiemon.daemon.store import EventStore, OutboxCounts
+from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.outbox import OutboxCounts
 from tests.daemon.delivery.support import DEADLINE_S, PREFIX, WAGON, commit, make_events, running, settings
 
 LINK = ConnectionSettings("broker.example", 8883)
@@ -445,7 +446,7 @@ def test_the_outbox_skips_an_unsendable_event_says_it_once_and_sends_the_rest_in
     skipped = [(entry["seq"], entry["event_id"], entry["log_level"]) for entry in logs if entry["event"].startswith("mqtt event not sent")]
     assert skipped == [(2, bad[0].event_id, "error"), (4, bad[1].event_id, "error")]  # once each, not again on the new session
     assert publisher.counters.unsendable_events == 2 and publisher.is_alive() is False and publisher.error is None
-    assert store.outbox_counts().pending_events == 2 and store.count() == 5  # they stay in the store, pending
+    assert store.outbox.counts().pending_events == 2 and store.count() == 5  # they stay in the store, pending
 
 
 def test_a_status_that_does_not_fit_is_not_queued_said_once_and_the_events_still_go(tmp_path: Path, memory_broker: MemoryBroker) -> None:
@@ -478,8 +479,8 @@ def test_a_status_record_damaged_in_the_store_is_not_published_said_once_and_the
     # Found by make fuzz (outbox): a status row changed in the store since it was queued (not an
     # object, or -Infinity, which is not JSON) went out as it was.
     store = EventStore(tmp_path / "state")
-    store.queue_status(1.7e9, "[1, 2]")
-    store.queue_status(1.7e9 + 1, '{"time_s": -Infinity}')
+    store.outbox.queue_status(1.7e9, "[1, 2]")
+    store.outbox.queue_status(1.7e9 + 1, '{"time_s": -Infinity}')
     listener = Listener(LINK, prefix=PREFIX, client_id="office", transport_factory=memory_broker.transport)
     with structlog.testing.capture_logs() as logs, running(listener):
         publisher = OutboxPublisher(settings(LINK), tmp_path / "state", transport_factory=memory_broker.transport)

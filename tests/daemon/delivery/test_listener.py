@@ -13,7 +13,7 @@ import pytest
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.listener import Listener, ListenError, Received, ReceivedStore
 from bogiemon.daemon.delivery.memory_transport import MemoryBroker, MemoryTransport
-from bogiemon.daemon.delivery.schema import EventMessage, Topics, dump
+from bogiemon.daemon.messages import EventMessage, Topics, dump
 from bogiemon.daemon.delivery.transport import TransportEvents
 from tests.daemon.delivery.support import DEADLINE_S, PREFIX, WAGON, listening, make_events
 

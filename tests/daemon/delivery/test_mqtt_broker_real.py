@@ -25,7 +25,7 @@ import structlog.testing
 from can.interfaces.virtual import VirtualBus
 
 from bogiemon.daemon.delivery.connection import ConnectionSettings
-from bogiemon.daemon.delivery.schema import EVENT_SCHEMA, STATUS_SCHEMA
+from bogiemon.daemon.messages import EVENT_SCHEMA, STATUS_SCHEMA
 from bogiemon.daemon.service import Service
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.daemon.store import EventStore
@@ -69,7 +69,7 @@ def test_normal_delivery_over_tls_with_a_client_certificate_and_credentials(tmp_
             for batch in (committed[:10], committed[10:25], committed[25:]):
                 commit(store, batch, publisher)
             assert_all_in_order(listener, committed)
-            assert wait_until(lambda: store.outbox_counts().pending_events == 0)  # every PUBACK recorded
+            assert wait_until(lambda: store.outbox.counts().pending_events == 0)  # every PUBACK recorded
             assert wait_until(lambda: len(listener.statuses) >= 2)
         assert [m.to_event() for m in listener.events] == committed  # every field survives the trip
         assert listener.duplicates == 0
@@ -90,7 +90,7 @@ def test_broker_down_at_start_then_the_backlog_arrives_oldest_first(tmp_path: Pa
     with structlog.testing.capture_logs() as logs, publishing(tmp_path / "state", settings(plain(broker), max_rate_msgs_per_s=200.0)) as publisher:
         commit(store, committed[:25], publisher)
         assert wait_until(lambda: publisher.counters.connect_failures >= 3)
-        assert store.outbox_counts().pending_events == 25  # nothing is delivered, nothing is lost
+        assert store.outbox.counts().pending_events == 25  # nothing is delivered, nothing is lost
         broker.start()
         commit(store, committed[25:], publisher)
         with listening(plain(broker)) as listener:
@@ -159,7 +159,7 @@ def test_daemon_killed_9_mid_burst_then_restarted_delivers_every_committed_event
         store = EventStore(state_dir)
         committed = store.events()
         assert [e.event_id for e in committed[: len(printed)]] == printed and len(committed) < 400
-        pending_after_kill = store.outbox_counts().pending_events
+        pending_after_kill = store.outbox.counts().pending_events
         assert 0 < pending_after_kill < len(committed)
         with publishing(state_dir, settings(plain(broker))):  # the daemon restarted
             assert_all_in_order(listener, committed)
@@ -186,7 +186,7 @@ def test_a_bad_certificate_is_logged_once_and_retried_without_delivering(tmp_pat
         failing = mqtt_logs(logs, "failing")
         assert len(failing) == 1, failing
         assert expected in str(failing[0]["reason"])
-        assert store.outbox_counts().pending_events == 5
+        assert store.outbox.counts().pending_events == 5
     finally:
         b.kill()
 
@@ -204,7 +204,7 @@ def test_wrong_credentials_are_logged_once_backed_off_and_picked_up_when_fixed(t
         with structlog.testing.capture_logs() as logs, publishing(tmp_path / "state", settings(connection, backoff_min_s=0.05, backoff_max_s=0.4)) as publisher:
             commit(store, committed, publisher)
             assert wait_until(lambda: publisher.counters.connect_failures >= 4)
-            assert publisher.is_alive() and store.outbox_counts().pending_events == 5
+            assert publisher.is_alive() and store.outbox.counts().pending_events == 5
             refused = mqtt_logs(logs, "failing")
             assert len(refused) == 1 and refused[0]["log_level"] == "error"
             assert "refused the credentials" in str(refused[0]["reason"]) and "mqtt.password_file" in str(refused[0]["reason"])

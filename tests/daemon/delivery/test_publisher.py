@@ -19,7 +19,8 @@ from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.memory_transport import MemoryBroker
 from bogiemon.daemon.delivery import publisher as publisher_module
 from bogiemon.daemon.delivery.publisher import TokenBucket
-from bogiemon.daemon.delivery.schema import EventMessage, Topics
+from bogiemon.daemon.messages import EventMessage, Topics
+from bogiemon.daemon.outbox import Outbox
 from bogiemon.daemon.store import EventStore, StoreWriteError
 from tests.daemon.delivery.support import (
     DEADLINE_S,
@@ -60,7 +61,7 @@ def test_every_event_goes_once_in_commit_order_and_is_marked_delivered_by_its_pu
             for batch in (committed[:10], committed[10:25], committed[25:]):
                 commit(store, batch, publisher)
             assert_all_in_order(listener, committed, until=waiter(memory_broker))
-            assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+            assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
             assert memory_broker.retained[TOPICS.state] == b"online"
         assert [m.to_event() for m in listener.events] == committed  # every field survives the trip
     assert len(memory_broker.messages(TOPICS.events)) == 30 and listener.duplicates == 0  # no resend without a loss
@@ -74,9 +75,9 @@ def test_an_event_stays_pending_until_its_puback_arrives(tmp_path: Path, memory_
     with publishing(tmp_path / "state", settings(LINK), transport=memory_broker.transport) as publisher:
         commit(store, make_events(3), publisher)
         assert memory_broker.wait_for(lambda: memory_broker.withheld_acks == 4, DEADLINE_S)  # three events and "online"
-        assert store.outbox_counts().pending_events == 3 and publisher.counters.delivered_events == 0  # sent is not delivered
+        assert store.outbox.counts().pending_events == 3 and publisher.counters.delivered_events == 0  # sent is not delivered
         assert memory_broker.release_acks() == 4
-        assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+        assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
     assert publisher.counters.published == 3 and publisher.counters.delivered_events == 3
 
 
@@ -92,7 +93,7 @@ def test_a_link_cut_mid_burst_resends_exactly_what_was_unacknowledged(tmp_path: 
             memory_broker.withhold_acks = False
             memory_broker.drop_links(CLIENT_ID)  # the wagon's link only: the back office stays connected
             assert_all_in_order(listener, committed, until=waiter(memory_broker))
-            assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+            assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
         assert listener.duplicates == 10  # the ten in flight at the cut, once more each, dropped by event_id
     sent = [m.payload for m in memory_broker.messages(TOPICS.events)]
     assert len(sent) == 40 and sent[10:20] == sent[:10]  # after the cut the backlog starts again at the oldest pending
@@ -107,9 +108,9 @@ def test_an_unreachable_broker_is_a_warning_logged_once_and_the_backlog_waits_fo
     with structlog.testing.capture_logs() as logs, publishing(tmp_path / "state", settings(LINK, backoff_min_s=0.02, backoff_max_s=0.05), transport=memory_broker.transport) as publisher:
         commit(store, committed, publisher)
         assert memory_broker.wait_for(lambda: publisher.counters.connect_failures >= 3, DEADLINE_S)
-        assert store.outbox_counts().pending_events == 12 and memory_broker.received == []
+        assert store.outbox.counts().pending_events == 12 and memory_broker.received == []
         memory_broker.start()
-        assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+        assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
     failing = mqtt_logs(logs, "failing")
     assert [(entry["log_level"], entry["reason"]) for entry in failing] == [
         ("warning", "connection refused by broker.example:8883: is the broker running and listening there?")
@@ -125,9 +126,9 @@ def test_refused_credentials_are_an_error_logged_once_until_the_broker_accepts(t
     with structlog.testing.capture_logs() as logs, publishing(tmp_path / "state", settings(LINK, backoff_min_s=0.02, backoff_max_s=0.05), transport=memory_broker.transport) as publisher:
         commit(store, committed, publisher)
         assert memory_broker.wait_for(lambda: publisher.counters.connect_failures >= 4, DEADLINE_S)
-        assert publisher.counters.connections == 0 and store.outbox_counts().pending_events == 5
+        assert publisher.counters.connections == 0 and store.outbox.counts().pending_events == 5
         memory_broker.refuse_connections = None
-        assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+        assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
     failing = mqtt_logs(logs, "failing")
     assert [(entry["log_level"], entry["reason"]) for entry in failing] == [
         ("error", "the broker refused the credentials (Bad user name or password): check mqtt.username_file and mqtt.password_file")
@@ -142,11 +143,11 @@ def test_a_message_the_broker_refuses_stays_pending_and_ends_the_session(tmp_pat
     with structlog.testing.capture_logs() as logs, publishing(tmp_path / "state", settings(LINK, backoff_min_s=0.02, backoff_max_s=0.05), transport=memory_broker.transport) as publisher:
         commit(store, committed, publisher)
         assert memory_broker.wait_for(lambda: publisher.counters.connections_lost >= 2, DEADLINE_S)
-        assert store.outbox_counts().pending_events == 3 and publisher.counters.delivered_events == 0
+        assert store.outbox.counts().pending_events == 3 and publisher.counters.delivered_events == 0
         memory_broker.stop()  # the ACL fixed during a restart, so that no session straddles the change
         memory_broker.refuse_publications = None
         memory_broker.start()
-        assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+        assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
     refusals = [entry for entry in mqtt_logs(logs, "lost") if "refused a message" in str(entry["reason"])]
     assert len(refusals) >= 2 and {(entry["log_level"], entry["reason"]) for entry in refusals} == {
         ("warning", f"the broker refused a message (Not authorized): check its ACL for {PREFIX}/{WAGON}/#")  # each session: connected, then lost
@@ -166,7 +167,7 @@ def test_outbox_full_drops_the_oldest_status_first_and_keeps_every_event(tmp_pat
     with publishing(tmp_path / "state", low, status=True, transport=memory_broker.transport) as publisher:
         commit(store, committed, publisher)
         assert memory_broker.wait_for(lambda: publisher.counters.dropped_status >= 30, DEADLINE_S)
-        counts = store.outbox_counts()
+        counts = store.outbox.counts()
         assert counts.pending_events == 8 and counts.dropped_events == 0  # the events all wait
         assert counts.pending <= bound + 1  # the bound, give or take the status queued since the last trim
         dropped_before = publisher.counters.dropped_status
@@ -196,21 +197,21 @@ def test_a_store_that_refuses_the_deliveries_is_retried_at_crit_and_nothing_is_l
     # PUBACK): the thread must not end, and what went out stays pending until it is marked.
     store = EventStore(tmp_path / "state")
     refusals = {"left": 2}
-    mark = EventStore.mark_delivered
+    mark = Outbox.mark_delivered
 
-    def refusing(self: EventStore, *args: object) -> None:
+    def refusing(self: Outbox, *args: object) -> None:
         if refusals["left"] > 0:
             refusals["left"] -= 1
-            raise StoreWriteError(f"{self.path}: cannot commit to the event store: database or disk is full")
+            raise StoreWriteError(f"{self.store.path}: cannot commit to the event store: database or disk is full")
         mark(self, *args)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(EventStore, "mark_delivered", refusing)
+    monkeypatch.setattr(Outbox, "mark_delivered", refusing)
     monkeypatch.setattr(publisher_module, "STORE_RETRY_S", 0.05)
     committed = make_events(3)
     with structlog.testing.capture_logs() as logs, listening(LINK, transport=memory_broker.transport) as listener:
         with publishing(tmp_path / "state", settings(LINK), transport=memory_broker.transport) as publisher:
             commit(store, committed, publisher)
-            assert memory_broker.wait_for(lambda: store.outbox_counts().pending_events == 0, DEADLINE_S)
+            assert memory_broker.wait_for(lambda: store.outbox.counts().pending_events == 0, DEADLINE_S)
             assert publisher.is_alive() and publisher.error is None
         assert [m.to_event() for m in listener.events] == committed  # copies sent again are dropped by event_id
     assert publisher.counters.store_failures == 2

@@ -1,7 +1,10 @@
 """What bogiemon publishes over MQTT: the topics and the versioned JSON messages (docs/mqtt.md).
 
 pydantic at the edge where events leave the process: the publisher builds these models and the
-back-office consumer (`bogiemon listen`) validates what it receives with the same ones. A schema
+back-office consumer (`bogiemon listen`) and the fleet's judgement validate what they receive with
+the same ones. A leaf: it imports pydantic and the event record alone (never the monitor, the store,
+paho or python-can), so a reader of the messages does not load the sender's stack; the status of a
+running monitor is built in daemon/delivery/status.py. A schema
 id ("bogiemon.event/1") changes its number only when a field is removed, renamed or changes its
 meaning; new optional fields keep it, so readers ignore fields they do not know.
 
@@ -19,10 +22,7 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter, ValidationError, field_validator
 from pydantic_core import PydanticCustomError, PydanticSerializationError
 
-from bogiemon.daemon.decision import INDICATOR_FIELDS
 from bogiemon.daemon.events import Event
-from bogiemon.daemon.monitor import Monitor
-from bogiemon.daemon.store import OutboxCounts
 
 EVENT_SCHEMA = "bogiemon.event/1"
 STATUS_SCHEMA = "bogiemon.status/1"
@@ -170,50 +170,6 @@ class StatusMessage(_Message):
     window: LatestWindow | None  # null until the first window is complete
     counters: Annotated[dict[ShortName, Count], Field(max_length=MAX_ENTRIES)]  # the monitor's, since the daemon started
     outbox: OutboxStatus
-
-
-def status_from_monitor(monitor: Monitor, wagon_id: str, time_s: float, outbox: OutboxCounts) -> StatusMessage:
-    """The status message of a running monitor (read from another thread: each field is one read).
-
-    Raises SchemaError when the monitor's state does not fit the schema (a window's times from a
-    broken clock, say).
-    """
-    try:
-        return _status_from_monitor(monitor, wagon_id, time_s, outbox)
-    except ValidationError as exc:
-        raise SchemaError(describe(exc)) from None
-
-
-def _status_from_monitor(monitor: Monitor, wagon_id: str, time_s: float, outbox: OutboxCounts) -> StatusMessage:
-    report = monitor.latest
-    window = None
-    if report is not None:
-        w, health = report.window, report.health
-        window = LatestWindow(
-            start_s=w.start_s,
-            end_s=w.end_s,
-            judged=report.judgement is not None,
-            gate=None if health.gate is None else health.gate.value,
-            sensors_ok=health.sensors_ok,
-            sensor_problems={ch: [p.value for p in problems] for ch, problems in health.problems.items()},
-            indicators={name: float(getattr(w, name)) for name in INDICATOR_FIELDS},
-            rms_mps2=[float(v) for v in w.rms_mps2],
-        )
-    return StatusMessage(
-        wagon_id=wagon_id,
-        time_s=time_s,
-        mode=report.mode if report is not None else monitor.mode,  # type: ignore[arg-type]
-        config_hash=monitor.settings.config_hash,
-        window=window,
-        counters=dict(vars(monitor.counters)),
-        outbox=OutboxStatus(
-            pending_events=outbox.pending_events,
-            pending_alarms=outbox.pending_alarms,
-            pending_status=outbox.pending_status,
-            dropped_events=outbox.dropped_events,
-            dropped_status=outbox.dropped_status,
-        ),
-    )
 
 
 def dump(message: _Message) -> str:

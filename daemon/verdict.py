@@ -1,0 +1,150 @@
+"""One verdict per window: sensor health, gating, load state, judgement, limits, mode and events,
+from one call, onboard and offline alike.
+
+The Monitor (daemon/monitor.py: `run` and `replay`), `fleet judge` and the lab's evaluation all
+judge a window with WindowJudge.judge and read what it concluded from the WindowVerdict it returns;
+none of them restates a rule of it. WindowJudge holds the decision and sensor state; no store, no
+sinks (the Monitor adds those).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Judgement
+from bogiemon.daemon.events import Event
+from bogiemon.daemon.health import HealthSettings, WindowHealth, assess_window
+from bogiemon.daemon.models import LoadDiscriminant, LoadModel, LoadSignature, excitation_of, finite_or_none, nearest_load
+from bogiemon.daemon.sensor_tracker import HealthState, HealthTracker
+from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Mode
+from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
+from bogiemon.detection.features import WindowFeatures
+from bogiemon.drivers.base import ALL_OK, SensorStatus
+
+Status = tuple[SensorStatus, SensorStatus, SensorStatus]
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    processing: ProcessingSettings
+    geometry: BogieGeometry
+    health: HealthSettings
+    decision: DecisionSettings
+    load: LoadSetting  # a fixed load state, or auto (estimated per window)
+    config_hash: str
+    sensor_clear_after_windows: int = 3
+    load_model: LoadModel | None = None
+    # The load states the wagon was commissioned in: with them, load "auto" takes the nearest, and
+    # a window like none of them is not judged (never an alarm for being unfamiliar); with a fixed
+    # load, a window excited more gently than that state's commissioning is not judged either.
+    load_states: tuple[LoadSignature, ...] = ()
+    load_discriminant: LoadDiscriminant | None = None  # with both states: the wagon's own line between them
+
+    def __post_init__(self) -> None:
+        if self.load is LoadSetting.AUTO and self.load_model is None:
+            raise ValueError("load 'auto' needs the load model")
+
+
+class Outcome(enum.Enum):
+    """What became of a window: every window is exactly one of these."""
+
+    JUDGED = "judged"
+    GATED = "gated"  # the wagon stood, stopped or started, or ran too gently (WindowHealth.gate)
+    UNFAMILIAR = "unfamiliar"  # its load, track or speed unlike the commissioning's, or between its load states
+    SENSOR = "sensor"  # a sensor problem in it, or a sensor fault not yet cleared
+
+
+@dataclass(frozen=True)
+class WindowVerdict:
+    """Everything the daemon concluded about one window."""
+
+    window: WindowIndicators
+    status: Status  # the sensors' status bits over it
+    health: WindowHealth
+    judgement: Judgement | None  # None when the window was not judged
+    mode: Mode  # the decision's mode after it
+    events: tuple[Event, ...]  # decided on it (committed and reported by the Monitor)
+    load: LoadState | None = None  # the load state it was judged in
+    p_full: float | None = None  # the estimated probability of full load (load "auto" without commissioning)
+    # Not judged for its load state: the distance of its load vector to the nearest commissioned
+    # state (NaN: a fixed load whose commissioning was excited more than this window).
+    unfamiliar: float | None = None
+    # The window's spectral features as the judgement computed them (None: not that far), for
+    # readers that need more of them (the back office's fleet evidence reads the couplings).
+    features: WindowFeatures | None = None
+
+    @property
+    def outcome(self) -> Outcome:
+        if self.judgement is not None:
+            return Outcome.JUDGED
+        if self.health.gate is not None:
+            return Outcome.GATED
+        if self.unfamiliar is not None:
+            return Outcome.UNFAMILIAR
+        return Outcome.SENSOR
+
+
+class WindowJudge:
+    """Sensor health, gating, load state and the suspension decision for one window at a time."""
+
+    def __init__(self, settings: MonitorSettings, decision: DecisionState | None = None, health: HealthState | None = None) -> None:
+        self.settings = settings
+        self.decider = self._decider(settings, decision)
+        self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, health)
+
+    @staticmethod
+    def _decider(settings: MonitorSettings, state: DecisionState | None) -> Decider:
+        return Decider(settings.decision, settings.config_hash, state, geometry=settings.geometry, hop_s=settings.processing.hop_s)
+
+    def reconfigure(self, settings: MonitorSettings) -> None:
+        """Apply new settings; the decision and sensor state carry over."""
+        self.settings = settings
+        self.decider = self._decider(settings, self.decider.state)
+        self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, self.health.state)
+
+    @property
+    def mode(self) -> Mode:
+        return self.decider.state.mode
+
+    def judge(self, window: WindowIndicators, status: Status = ALL_OK, gaps_last_hour: int = 0) -> WindowVerdict:
+        s = self.settings
+        health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
+        events = self.health.update(window, health)
+
+        def verdict(**judged: Any) -> WindowVerdict:
+            return WindowVerdict(window, status, health, judged.pop("judgement", None), self.mode, tuple(events), **judged)
+
+        # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
+        # window's checks (noise that the track's own excitation hides) and still couple the modes.
+        if not health.judgeable or self.health.faulted:
+            return verdict()
+        features = WindowFeatures(window.spectra, s.geometry) if window.spectra is not None else None
+        load_vector = finite_or_none(features.load) if features is not None else None
+        excitation_mps2 = excitation_of(window)
+        fixed = s.load.fixed()
+        context: dict[str, Any] = {"load_source": "configured"}
+        p_full = None
+        if fixed is not None:
+            load = fixed
+            state = next((st for st in s.load_states if st.load == fixed), None)
+            if state is not None and not state.familiar_excitation(excitation_mps2):
+                # A configured load, commissioned: its excitation range holds as it does for "auto".
+                return verdict(unfamiliar=math.nan, features=features)
+        elif s.load_states:
+            nearest, distance = nearest_load(load_vector, excitation_mps2, s.load_states, s.load_discriminant)
+            if nearest is None:
+                return verdict(unfamiliar=distance, features=features)
+            load, context = nearest, {"load_source": "commissioned", "load_distance": round(distance, 3)}
+        else:
+            assert s.load_model is not None
+            p_full = s.load_model.probability_of(features.load) if features is not None else math.nan
+            # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on
+            # the simulated fleets (docs/robust/README.md): no third state is needed.
+            load = LoadState.FULL if p_full >= 0.5 else LoadState.TARE
+            context = {"load_source": "estimated", "p_full": round(p_full, 4)}
+        judgement, decided = self.decider.update(window, load, context, features)
+        events += decided
+        return verdict(judgement=judgement, load=load, p_full=p_full, features=features)
