@@ -36,6 +36,11 @@ STATE_KEY = "monitor"
 MAX_HELD_EVENTS = 1000
 
 
+def windows_of(settings: MonitorSettings) -> tuple[object, ...]:
+    """What a monitor's windows are computed from: a reload that changes it restarts them."""
+    return (settings.processing, settings.geometry, settings.health.clip_level_mps2)
+
+
 class EventLog(Protocol):
     """Where the monitor commits its events with its state: the service's SQLite EventStore
     (daemon/store.py), or MemoryEventLog (the back office's judgement, tests)."""
@@ -141,13 +146,19 @@ class Monitor:
         """The problems of the SENSOR_FAULT in force, per channel (empty: the sensors are healthy)."""
         return dict(self._judge.health.state.reported)
 
-    def reconfigure(self, settings: MonitorSettings) -> None:
-        """Apply a reloaded config; the alarm state carries over, the windows restart."""
+    def reconfigure(self, settings: MonitorSettings) -> bool:
+        """Apply a reloaded config: the alarm and sensor state carry over, the next window is judged
+        by the new settings. The windows restart only when what they are computed from changed (the
+        processing, the sensors' corners and geometry, the clip level): a reload of anything else
+        loses no window, however often it comes. Returns whether they restarted."""
+        restart = windows_of(settings) != windows_of(self.settings)
         self.settings = settings
         self._judge.reconfigure(settings)
-        windows = self._block_windows(settings)
-        windows.spans, windows.gaps = self._windows.spans, self._windows.gaps  # the gaps and status bits carry on
-        self._windows = windows
+        if restart:
+            windows = self._block_windows(settings)
+            windows.spans, windows.gaps = self._windows.spans, self._windows.gaps  # the gaps and status bits carry on
+            self._windows = windows
+        return restart
 
     def new_stream(self) -> None:
         """The next block begins another recording: a new segment, never a dropout of the source."""

@@ -250,16 +250,24 @@ class Service:
         except Exception as exc:
             reject(exc, "load")
             return pipeline
+        if new.digest() == old.digest():
+            # The same config (its includes too): nothing to apply, nothing restarts. A reload storm
+            # (a tool reloading on every change of a folder, say) must never make the monitor blind.
+            self._log.info("reloaded", config_hash=new.digest(), unchanged=True, windows_restart=False)
+            self.notifier.ready(status="reloaded: the config is unchanged")
+            return pipeline
         restart_source = new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline
         source_stopped = False
+        restarted: list[bool] = []
         try:
             self.config = new
-            pipeline.with_monitor(lambda m: m.reconfigure(settings))
+            pipeline.with_monitor(lambda m: restarted.append(m.reconfigure(settings)))
             self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
             if restart_source:
                 source_stopped = True
                 pipeline.stop()
                 pipeline.source.close()
+                monitor.new_stream()  # the new source's first samples: a new segment, not a loss
                 pipeline = self._start_pipeline(monitor)
         except Exception as exc:
             try:  # what ran before, as it ran: the monitor's settings (its alarm state carries over), delivery, source
@@ -280,7 +288,11 @@ class Service:
             self._log.error("recorder not reconfigured, the running one goes on", error=f"{type(exc).__name__}: {exc}")
         if new.state != old.state:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
-        self._log.info("reloaded", config_hash=new.digest())
+        # Said when the windows restart (the processing, the sensors or the source changed): the next
+        # judged window is then a whole window of data away.
+        windows_restart = bool(restarted and restarted[0]) or restart_source
+        self._log.info("reloaded", config_hash=new.digest(), windows_restart=windows_restart)
         self._warn_if_not_commissioned(new)
-        self.notifier.ready(status="reloaded")
+        restart_text = f": the windows restart, the next is judged {new.processing.window_s:g} s of data from now"
+        self.notifier.ready(status="reloaded" + (restart_text if windows_restart else ""))
         return pipeline

@@ -171,3 +171,83 @@ def test_sighup_after_include_5_and_after_window_s_inf_keeps_the_daemon_on_its_o
     stored = EventStore(tmp_path / "state", readonly=True).events()
     assert [(e.kind.value, e.config_hash) for e in stored] == [("SUSPECTED", old_digest), ("CONFIRMED", old_digest)]
 
+
+# --- reloads never blind the monitor (issue 27) ----------------------------------------------------
+
+
+class ReloadingFeed:
+    """Blocks for the service, and a real SIGHUP every `every` blocks: the config file written
+    anew (the same text, or `changed` with another decision setting, in turn), then held until the
+    service told systemd the reload is done, so that reloads keep pace with the data."""
+
+    def __init__(self, blocks: list[Block], every: int, config_path: Path, changed: str, notify: socket.socket) -> None:
+        self.blocks, self.every, self.config_path, self.notify = blocks, every, config_path, notify
+        self.texts = [config_path.read_text(), changed]
+        self.next = self.reloads = 0
+        self.statuses: list[str] = []
+
+    def read(self, timeout_s: float) -> Block | None:
+        if self.next >= len(self.blocks):
+            raise EndOfStream
+        if self.next and self.next % self.every == 0 and self.reloads < self.next // self.every:
+            self.reloads += 1
+            self.config_path.write_text(self.texts[(self.reloads // 2) % 2])  # same, same, changed, changed, ...
+            os.kill(os.getpid(), signal.SIGHUP)
+            while True:  # the service's answer to systemd ends the reload
+                message = self.notify.recv(4096).decode()
+                if message.startswith("READY=1\nSTATUS=reload"):  # not the first READY's "receiving data"
+                    self.statuses.append(message.removeprefix("READY=1\nSTATUS="))
+                    break
+        self.next += 1
+        return self.blocks[self.next - 1]
+
+
+def test_a_reload_every_four_seconds_of_data_loses_no_window_and_the_fault_is_found(
+    tmp_path: Path, short_config: Path, own_signal_handlers: None
+) -> None:
+    # Two minutes of a healthy bogie, then two with pitch coupled to roll; 6 s windows every 2 s. A
+    # reload every 4 s of data used to restart the windows each time: none was ever judged.
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(str(tmp_path / "notify"))
+    listener.settimeout(30.0)
+    accel = np.vstack([bogie_accel(120, seed=1), bogie_accel(120, seed=2, pitch_roll_coupling=1.0)])
+    blocks = as_blocks(accel)  # 0.5 s each
+    changed = short_config.read_text().replace("[decision]\n", "[decision]\nclear_after_windows = 9\n")
+    feed = ReloadingFeed(blocks, 8, short_config, changed, listener)
+    sink = MemorySink()
+    windows: list[object] = []
+    service = Service(short_config, lambda config: FeedSource(feed), notifier=Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify")}),
+                      sinks=[sink], observers=[windows.append])  # fmt: skip
+    service.install_signal_handlers()
+    with structlog.testing.capture_logs() as logs:
+        assert service.run() == 0
+    reloads = [entry for entry in logs if entry["event"] == "reloaded"]
+    assert feed.reloads == len(reloads) == len(blocks) // 8 - 1 == 59
+    assert sum(1 for r in reloads if r.get("unchanged")) == 30 and not any(r["windows_restart"] for r in reloads)
+    assert set(feed.statuses) == {"reloaded", "reloaded: the config is unchanged"}
+    assert len(windows) == (240 - 6) // 2 + 1  # every window of the four minutes, none lost to a reload
+    kinds = [e.kind.value for e in sink.events]
+    assert kinds[:2] == ["SUSPECTED", "CONFIRMED"] and 120 < sink.events[1].time_s - 1.7e9 < 140
+
+
+def test_a_reload_that_changes_the_processing_restarts_the_windows_and_says_so(
+    tmp_path: Path, short_config: Path, own_signal_handlers: None
+) -> None:
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(str(tmp_path / "notify"))
+    listener.settimeout(30.0)
+    blocks = as_blocks(bogie_accel(60, seed=1))
+    changed = short_config.read_text().replace("hop_s = 2.0", "hop_s = 3.0")
+    feed = ReloadingFeed(blocks, 60, short_config, changed, listener)
+    feed.texts = [changed, changed]  # the first reload changes the hop
+    windows: list[object] = []
+    service = Service(short_config, lambda config: FeedSource(feed), notifier=Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify")}),
+                      observers=[windows.append])  # fmt: skip
+    service.install_signal_handlers()
+    with structlog.testing.capture_logs() as logs:
+        assert service.run() == 0
+    reloads = [entry for entry in logs if entry["event"] == "reloaded"]
+    assert [r["windows_restart"] for r in reloads] == [True]
+    assert feed.statuses == ["reloaded: the windows restart, the next is judged 6 s of data from now"]
+    # 30 s at a 2 s hop, then the windows restart: 30 s at a 3 s hop.
+    assert len(windows) == ((30 - 6) // 2 + 1) + ((30 - 6) // 3 + 1)
