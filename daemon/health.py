@@ -258,9 +258,13 @@ def assess_window(
             flag(name, SensorProblem.OVER_RANGE)
         if stats.clipped_fraction[c] >= settings.clipped_fraction:  # counted at clip_level_mps2 by the core
             flag(name, SensorProblem.CLIPPING)
-        if rms[c] > settings.max_rms_mps2 or (median_rms > 0 and rms[c] > settings.noise_ratio * median_rms):
+        # Noise is a channel that moves more than the others: one below the standstill level does
+        # not move at all (three constant channels of a standing wagon leave the high-pass only
+        # rounding, whose ratios mean nothing), and at standstill the frame gives no band to compare.
+        moving = rms[c] >= settings.standstill_rms_mps2 and not standstill
+        if rms[c] > settings.max_rms_mps2 or (moving and median_rms > 0 and rms[c] > settings.noise_ratio * median_rms):
             flag(name, SensorProblem.NOISY)
-        elif low_power is not None and low_median > 0 and low_power[c] > settings.noise_low_band_ratio * low_median:
+        elif moving and low_power is not None and low_median > 0 and low_power[c] > settings.noise_low_band_ratio * low_median:
             flag(name, SensorProblem.NOISY)
         if not standstill:  # a quiet channel is only suspicious while another one moves
             if rms[c] < settings.flat_rms_mps2:

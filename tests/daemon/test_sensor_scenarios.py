@@ -245,3 +245,14 @@ def test_a_swapped_pair_is_found_with_the_learned_structure_and_not_without_one(
     uncommissioned = reported(judged_windows(swapped, settings))
     assert not {p for problems in uncommissioned.values() for p in problems} & {"swapped", "inverted"}
 
+
+@pytest.mark.parametrize("offsets_mps2", [(9.81, 0.1, 0.2), (9.81, 9.81, 9.81), (0.0, 0.0, 0.0), (9.81, -0.3, 1e-6)])
+def test_a_standing_wagon_with_constant_channels_of_any_offsets_raises_no_sensor_fault(offsets_mps2: tuple[float, float, float]) -> None:
+    # A new user's first try: three constant channels of a standing wagon, each with its own
+    # offset. The high-pass leaves only rounding of each, whose ratios once named a1 noisy for as
+    # long as the wagon stood (a fault that cannot clear while every window is gated).
+    accel = np.tile(np.asarray(offsets_mps2, dtype=np.float64), (int(600 * 500), 1))
+    judged = judged_windows(accel)
+    assert len(judged) == 49
+    assert all(j.health.gate is Gate.STANDSTILL and j.health.problems == {} for _, j in judged)
+    assert not [e for _, j in judged for e in j.events]
