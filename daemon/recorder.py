@@ -85,8 +85,8 @@ def event_store_reserve_bytes(status_outbox_messages: int) -> int:
 
 # With MQTT's default outbox of 10 000 messages: 30 842 880 B (29.4 MiB); 20 602 880 B (19.6 MiB) without.
 DEFAULT_RESERVE_BYTES = event_store_reserve_bytes(10_000)
-# What a file takes beyond its bytes rounded up to the file system's blocks: its inode and extent
-# blocks, a directory block more for its name (ext4, f2fs, tmpfs take far less).
+# What a file may take beyond its bytes rounded up to the file system's blocks: an extent block, a
+# directory block more for its name (generous: ext4, f2fs and tmpfs take a block or two at most).
 FILE_SLACK_BYTES = 64 * 1024
 # While no recording comes, the writer looks this often whether the reserve is still free (the
 # event store grows into it, or another program fills the disk) and gives its own files back.
@@ -245,7 +245,7 @@ class Recorder:
         self._ring_warned = False
         self._closed = False
         self._no_room_since: int | None = None  # counters.no_room when recording stopped for the reserve; None: recording
-        self.ready = threading.Event()  # set once the writer has prepared the folder and given the reserve back
+        self.ready = threading.Event()  # set once the writer has prepared the folder and given the reserve back (or failed to)
         self._unwritten = 0  # recordings queued and not yet written or lost
         self._written = threading.Condition()
         self._queue: queue.Queue[PendingRecording | None] = queue.Queue(maxsize=queue_size)
