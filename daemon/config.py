@@ -259,19 +259,22 @@ class BogiemonConfig(Section):
         )
 
     def recorder_settings(self) -> RecorderSettings | None:
-        """What the recorder needs: its section, and the windows and confirmation whose samples a
-        snapshot holds; None when [recorder] is not enabled."""
-        from bogiemon.daemon.recorder import RecorderSettings  # the service builds it, only when enabled
+        """What the recorder needs: its section, the windows and confirmation whose samples a
+        snapshot holds, and the event store's reserve (with room for the MQTT outbox full of status
+        messages when MQTT sends them); None when [recorder] is not enabled."""
+        from bogiemon.daemon.recorder import RecorderSettings, event_store_reserve_bytes  # only when enabled
 
-        r = self.recorder
+        r, m = self.recorder, self.mqtt
         if not r.enabled:
             return None
+        status_outbox_messages = m.outbox_max_messages if m.enabled and m.status_period_s > 0 else 0
         return RecorderSettings(
             directory=r.directory,
             lead_in_s=r.lead_in_s,
             periodic_every_h=r.periodic_every_h,
             periodic_s=r.periodic_s,
             max_total_bytes=r.max_total_bytes,
+            reserve_bytes=event_store_reserve_bytes(status_outbox_messages),
             window_s=self.processing.window_s,
             hop_s=self.processing.hop_s,
             confirm_n=self.decision.confirm_n,

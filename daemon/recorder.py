@@ -11,7 +11,9 @@ No recording spans a gap: a recording is one uniformly sampled stretch.
 The processing thread only copies samples; a thread of the recorder's own compresses and writes
 them (a temporary '.' name, fsync, rename), then deletes the oldest recordings over the size cap.
 A recording is a nicety, the events are what matter: a full queue drops the recording and a
-failing disk loses it, both counted and logged, and neither ever reaches the monitor.
+failing disk loses it, both counted and logged, and neither ever reaches the monitor. Nor does the
+disk: the recorder leaves the event store's reserve free on its file system, deleting its own
+oldest files before it writes and not recording while there is no room above the reserve.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,7 +61,65 @@ _STAMP_FORMAT = "%Y%m%dT%H%M%SZ"
 # Slack when counting whole hops between two window times (float sums of sample periods).
 _HOP_SLACK = 1e-6
 
+# The free space the recorder leaves to the event store (docs/recorder.md, "The reserve"): what the
+# store takes for a long time, from figures measured with the real store on a tmpfs (4 KiB pages)
+# and checked by tests/daemon/test_recorder_space.py. The store is SQLite in WAL mode: the WAL grows
+# until a commit takes it past SQLite's default checkpoint of 1000 pages (measured ceiling 4.17 MB,
+# 1012 frames of 4 KiB + 24 B; with the 32 KiB -shm index), and is deleted at every clean stop, so
+# it grows again after each start: 7 to 8 pages (30 kB) an event commit, the ceiling within about
+# 135 events. store.py's LOW_SPACE_BYTES (256 KiB) is only where a refused commit is named a full disk.
+STORE_WAL_BYTES = 5 * MIB  # the WAL at its ceiling and the -shm, 0.9 MB to spare (a batch of held events past it)
+# An event committed with the monitor's state, in the main file: measured 1 066 B (the demo wagon's
+# CONFIRMED of 864 B and its state of 1.5 kB), 860 B (the tests' short windows).
+STORE_EVENT_BYTES = 1536
+STORE_EVENTS = 10_000  # the events the reserve has room for: 10 a day for nearly 3 years
+STORE_STATUS_BYTES = 1024  # a status message waiting in the MQTT outbox: measured 819 B for one of 795 B
+
+
+def event_store_reserve_bytes(status_outbox_messages: int) -> int:
+    """The free space the recorder never takes from the event store: its WAL at the ceiling,
+    STORE_EVENTS events, and status_outbox_messages MQTT status messages waiting to be sent (the
+    outbox bound when MQTT sends status messages, else 0)."""
+    return STORE_WAL_BYTES + STORE_EVENTS * STORE_EVENT_BYTES + status_outbox_messages * STORE_STATUS_BYTES
+
+
+# With MQTT's default outbox of 10 000 messages: 30 842 880 B (29.4 MiB); 20 602 880 B (19.6 MiB) without.
+DEFAULT_RESERVE_BYTES = event_store_reserve_bytes(10_000)
+# What a file may take beyond its bytes rounded up to the file system's blocks: an extent block, a
+# directory block more for its name (generous: ext4, f2fs and tmpfs take a block or two at most).
+FILE_SLACK_BYTES = 64 * 1024
+# While no recording comes, the writer looks this often whether the reserve is still free (the
+# event store grows into it, or another program fills the disk) and gives its own files back.
+SPACE_CHECK_S = 60.0
+_CSV_HEADER_BYTES = len("time_s,a1,a2,a3\n")
+_BOUND_CHUNK_ROWS = 1 << 16
+
 WriteRecording = Callable[[Path, NDArray[np.float64], NDArray[np.float32]], None]
+# Room is made and taken by one writer at a time (during a reload, two recorders write).
+_DISK_LOCK = threading.Lock()
+
+
+def recording_bound_bytes(time_s: NDArray[np.float64], accel_mps2: NDArray[np.floating]) -> int:
+    """An upper bound of the size of the .csv.gz that drivers/recording.py writes for these samples.
+
+    The text: each value "%.6f" is its sign (of -0.0 too), the digits of its whole part (at most
+    those of floor(|x|) + 1, rounding included), a point and 6 decimals, then a comma or a newline
+    ("nan", "inf" and "-inf" take at most 4). Deflate expands incompressible text by at most 5 bytes
+    a 16 KiB block, and gzip adds 18 bytes (zlib's technical details): counted here as 8 bytes a
+    16 KiB block and 64. About 2.9 times what a bogie's samples compress to (docs/recorder.md).
+    """
+    text_bytes = _CSV_HEADER_BYTES
+    for start in range(0, time_s.shape[0], _BOUND_CHUNK_ROWS):  # in chunks: an hour at 500 Hz is 1.8 M rows
+        rows = slice(start, start + _BOUND_CHUNK_ROWS)
+        text_bytes += _text_bytes_bound(time_s[rows]) + sum(_text_bytes_bound(accel_mps2[rows, i]) for i in range(3))
+    return text_bytes + text_bytes // 2048 + 64
+
+
+def _text_bytes_bound(values: NDArray[np.floating]) -> int:
+    values = np.asarray(values, dtype=np.float64)
+    finite = np.isfinite(values)
+    digits = np.floor(np.log10(np.where(finite, np.abs(values), 0.0) + 1.0)) + 1.0
+    return int((np.where(finite, np.signbit(values) + digits + 7.0, 4.0) + 1.0).sum())
 
 
 @dataclass(frozen=True)
@@ -71,6 +131,7 @@ class RecorderSettings:
     periodic_every_h: float = 0.0  # 0: no periodic recordings
     periodic_s: float = 300.0
     max_total_bytes: int = 512 * MIB
+    reserve_bytes: int = DEFAULT_RESERVE_BYTES  # free space on the folder's file system the recordings never take
     window_s: float = 120.0
     hop_s: float = 10.0
     confirm_n: int = 5
@@ -97,8 +158,9 @@ class RecorderCounters:
     snapshots_written: int = 0
     periodic_written: int = 0
     dropped: int = 0  # recordings not written because the writer was behind (the queue was full)
+    no_room: int = 0  # recordings not written: they would have taken the event store's reserve
     write_errors: int = 0  # recordings lost, or files not deleted, to an OSError
-    files_deleted: int = 0  # the oldest recordings, deleted to keep under max_total_bytes
+    files_deleted: int = 0  # the oldest recordings, deleted to keep under max_total_bytes or the reserve free
     bytes_deleted: int = 0
 
 
@@ -182,6 +244,10 @@ class Recorder:
         self._periodic_left_n = 0
         self._ring_warned = False
         self._closed = False
+        self._no_room_since: int | None = None  # counters.no_room when recording stopped for the reserve; None: recording
+        self.ready = threading.Event()  # set once the writer has prepared the folder and given the reserve back (or failed to)
+        self._unwritten = 0  # recordings queued and not yet written or lost
+        self._written = threading.Condition()
         self._queue: queue.Queue[PendingRecording | None] = queue.Queue(maxsize=queue_size)
         self._writer = threading.Thread(target=self._write_loop, name="bogiemon-recorder", daemon=True)
         self._writer.start()
@@ -270,21 +336,41 @@ class Recorder:
             self._submit(PendingRecording(PERIODIC, self._periodic_start_s, self._ring.fs_hz, accel))
 
     def _submit(self, recording: PendingRecording) -> None:
+        with self._written:
+            self._unwritten += 1
         try:
             self._queue.put_nowait(recording)
         except queue.Full:
+            self._one_done()
             self.counters.dropped += 1
             self._log.warning(
                 "recording dropped: the writer is behind", reason=recording.reason, name=recording.file_stem(),
                 queued=self._queue.maxsize, dropped=self.counters.dropped,
             )  # fmt: skip
 
+    def _one_done(self) -> None:
+        with self._written:
+            self._unwritten -= 1
+            if self._unwritten == 0:
+                self._written.notify_all()
+
+    def wait_written(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Wait until every recording queued so far is written, or lost; False if timeout_s passed first."""
+        with self._written:
+            return self._written.wait_for(lambda: self._unwritten == 0, timeout_s)
+
     # --- the writer thread ----------------------------------------------------------------------
 
     def _write_loop(self) -> None:
-        self._prepare_directory()
+        if self._prepare_directory():
+            self._give_back(at_start=True)
+        self.ready.set()
         while True:
-            recording = self._queue.get()
+            try:
+                recording = self._queue.get(timeout=SPACE_CHECK_S)
+            except queue.Empty:
+                self._give_back()
+                continue
             if recording is None:
                 return
             try:
@@ -292,8 +378,10 @@ class Recorder:
             except Exception as exc:  # noqa: BLE001 - a bug here must not end the recordings for the rest of the run
                 self.counters.write_errors += 1
                 self._log.error("recorder failed (a bug)", reason=recording.reason, error=repr(exc), exc_info=True)
+            finally:
+                self._one_done()
 
-    def _prepare_directory(self) -> None:
+    def _prepare_directory(self) -> bool:
         """Create the folder; delete what a crash left half-written (only the recorder's own names)."""
         directory = self.settings.directory
         try:
@@ -306,37 +394,91 @@ class Recorder:
         except OSError as exc:
             self.counters.write_errors += 1
             self._log.error("cannot prepare the recordings folder", path=str(directory), error=exc.strerror or str(exc))
+            return False
+        return True
+
+    def _give_back(self, at_start: bool = False) -> None:
+        """Delete the oldest recordings while the reserve is not free: at the start (an earlier run's
+        recordings, a smaller disk), and while idle (the event store grew into the reserve, or another
+        program filled the disk). A folder that cannot be looked at is the next recording's error."""
+        directory = self.settings.directory
+        with _DISK_LOCK:
+            try:
+                free_bytes = self._evict(directory, needed_bytes=0)
+            except OSError:
+                return
+        if at_start:
+            self._log.info("recordings folder ready", path=str(directory), free_bytes=free_bytes, reserve_bytes=self.settings.reserve_bytes)
+            if free_bytes < self.settings.reserve_bytes:
+                self._say_no_room(free_bytes, 0, None)
 
     def _write(self, recording: PendingRecording) -> None:
         directory = self.settings.directory
         path = directory / f"{recording.file_stem()}.csv.gz"
-        temporary = path
-        try:
-            directory.mkdir(parents=True, exist_ok=True)  # again: it may have been removed since
-            path = self._free_name(directory, recording.file_stem())
-            temporary = path.with_name(f".{path.name}")  # an uploader skips names beginning with '.'
-            self._write_recording(temporary, recording.time_s, recording.accel_mps2)
-            os.replace(temporary, path)
-            _fsync_directory(directory)  # the rename itself survives a power cut
-            size = path.stat().st_size
-        except OSError as exc:
-            self.counters.write_errors += 1
-            self._log.error(
-                "cannot write a recording, it is lost", path=str(temporary), reason=recording.reason,
-                error=exc.strerror or str(exc), write_errors=self.counters.write_errors,
-            )  # fmt: skip
+        temporary: Path | None = None
+        with _DISK_LOCK:  # one writer on the disk: two recorders live during a reload
             try:
-                temporary.unlink(missing_ok=True)
-            except OSError:
-                pass  # the same failing disk: _prepare_directory removes it at the next start
-            return
-        if recording.reason == PERIODIC:
-            self.counters.periodic_written += 1
+                directory.mkdir(parents=True, exist_ok=True)  # again: it may have been removed since
+                time_s = recording.time_s
+                if not self._make_room(directory, recording, time_s):
+                    return
+                path = self._free_name(directory, recording.file_stem())
+                temporary = path.with_name(f".{path.name}")  # an uploader skips names beginning with '.'
+                self._write_recording(temporary, time_s, recording.accel_mps2)
+                os.replace(temporary, path)
+                _fsync_directory(directory)  # the rename itself survives a power cut
+                size = path.stat().st_size
+            except OSError as exc:
+                self.counters.write_errors += 1
+                self._log.error(
+                    "cannot write a recording, it is lost", path=str(temporary or path), reason=recording.reason,
+                    error=exc.strerror or str(exc), write_errors=self.counters.write_errors,
+                )  # fmt: skip
+                try:
+                    if temporary is not None:  # never the final name: that may be an earlier recording's
+                        temporary.unlink(missing_ok=True)
+                except OSError:
+                    pass  # the same failing disk: _prepare_directory removes it at the next start
+                return
+            if recording.reason == PERIODIC:
+                self.counters.periodic_written += 1
+            else:
+                self.counters.snapshots_written += 1
+            duration_s = recording.accel_mps2.shape[0] / recording.fs_hz
+            self._log.info("recording written", path=str(path), reason=recording.reason, duration_s=round(duration_s, 3), bytes=size)
+            if self._no_room_since is not None:
+                self._log.info("recording resumed: there is room above the event store's reserve again",
+                               path=str(directory), not_written=self.counters.no_room - self._no_room_since)  # fmt: skip
+                self._no_room_since = None
+            self._keep_under_cap(directory, keep=path.name)
+
+    def _make_room(self, directory: Path, recording: PendingRecording, time_s: NDArray[np.float64]) -> bool:
+        """Whether the recording fits above the reserve, once the oldest recordings that make room
+        for it are deleted; the bound of its size is taken, the written file may only be smaller."""
+        block_bytes = os.statvfs(directory).f_frsize or 4096
+        bound_bytes = recording_bound_bytes(time_s, recording.accel_mps2)
+        needed_bytes = -(-bound_bytes // block_bytes) * block_bytes + FILE_SLACK_BYTES
+        free_bytes = self._evict(directory, needed_bytes)
+        if free_bytes - needed_bytes >= self.settings.reserve_bytes:
+            return True
+        self.counters.no_room += 1
+        self._say_no_room(free_bytes, needed_bytes, recording)
+        return False
+
+    def _say_no_room(self, free_bytes: int, needed_bytes: int, recording: PendingRecording | None) -> None:
+        fields = {
+            "path": str(self.settings.directory), "free_bytes": free_bytes, "reserve_bytes": self.settings.reserve_bytes,
+            "needed_bytes": needed_bytes, "no_room": self.counters.no_room,
+            **({"reason": recording.reason, "name": recording.file_stem()} if recording is not None else {}),
+        }  # fmt: skip
+        if self._no_room_since is None:
+            self._no_room_since = self.counters.no_room - (recording is not None)
+            self._log.warning("recording stopped: no room above the event store's reserve, the events come first", **fields)
         else:
-            self.counters.snapshots_written += 1
-        duration_s = recording.accel_mps2.shape[0] / recording.fs_hz
-        self._log.info("recording written", path=str(path), reason=recording.reason, duration_s=round(duration_s, 3), bytes=size)
-        self._keep_under_cap(directory, keep=path.name)
+            self._log.info("recording not written: still no room above the event store's reserve", **fields)
+
+    def _evict(self, directory: Path, needed_bytes: int) -> int:
+        return _evict(directory, self.settings.reserve_bytes, needed_bytes, self.counters, self._log)
 
     @staticmethod
     def _free_name(directory: Path, stem: str) -> Path:
@@ -351,18 +493,13 @@ class Recorder:
         """Delete the oldest of the recorder's own files, never `keep` (just written), until the
         total is at most max_total_bytes."""
         try:
-            with os.scandir(directory) as entries:
-                files = sorted(
-                    (e.name, e.stat(follow_symlinks=False).st_size)
-                    for e in entries
-                    if NAME_PATTERN.fullmatch(e.name) and e.is_file(follow_symlinks=False)
-                )
-        except OSError as exc:  # FileNotFoundError too: an uploader took a file while we looked
+            files = _own_files(directory)
+        except OSError as exc:
             self.counters.write_errors += 1
             self._log.error("cannot list the recordings folder to keep it under its cap", path=str(directory), error=exc.strerror or str(exc))
             return
-        total = sum(size for _, size in files)
-        for name, size in files:
+        total = sum(size for _, size, _ in files)
+        for name, size, _ in files:
             if total <= self.settings.max_total_bytes:
                 break
             if name == keep:
@@ -396,6 +533,76 @@ class Recorder:
         if self._writer.is_alive():
             self._log.error("the recorder's writer did not finish in time: the recordings still queued are lost", timeout_s=timeout_s)
         self._log.info("recorder stopped", **vars(self.counters))
+
+
+def _evict(directory: Path, reserve_bytes: int, needed_bytes: int, counters: RecorderCounters, log: Any) -> int:
+    """Delete the recorder's oldest files until needed_bytes fit above the reserve, or, when
+    deleting them all would not make that room, until the reserve is free; the free bytes then."""
+    free_bytes = _free_bytes(directory)
+    if free_bytes - needed_bytes >= reserve_bytes:
+        return free_bytes
+    files = _own_files(directory)
+    held_bytes = sum(disk_bytes for _, _, disk_bytes in files)
+    target = reserve_bytes + needed_bytes if free_bytes + held_bytes - needed_bytes >= reserve_bytes else reserve_bytes
+    deleted_n = deleted_bytes = 0
+    for name, size, _ in files:
+        if free_bytes >= target:
+            break
+        try:
+            (directory / name).unlink()
+        except FileNotFoundError:
+            pass  # an uploader took it meanwhile
+        except OSError as exc:  # the disk refuses: the next files would fare no better
+            counters.write_errors += 1
+            log.error("cannot delete an old recording", path=str(directory / name), error=exc.strerror or str(exc))
+            break
+        else:
+            counters.files_deleted += 1
+            counters.bytes_deleted += size
+            deleted_n += 1
+            deleted_bytes += size
+        free_bytes = _free_bytes(directory)  # measured: a file an uploader holds open frees nothing yet
+    if deleted_n:
+        log.info(
+            "deleted the oldest recordings to keep the event store's reserve free", path=str(directory), files=deleted_n,
+            bytes=deleted_bytes, free_bytes=free_bytes, reserve_bytes=reserve_bytes, needed_bytes=needed_bytes,
+        )  # fmt: skip
+    return free_bytes
+
+
+def keep_the_reserve_free(settings: RecorderSettings) -> None:
+    """Delete the oldest recordings while the event store's reserve is not free, now, in this
+    thread: for the service before it opens the event store, which a disk filled to its last pages
+    (by an earlier version's recordings, say) does not even let open. A running recorder does the
+    same from its own thread."""
+    try:
+        _evict(settings.directory, settings.reserve_bytes, 0, RecorderCounters(), get_logger(component="recorder"))
+    except OSError:
+        pass  # no folder yet, or one that cannot be read: the recorder's writer says what is wrong
+
+
+def _free_bytes(directory: Path) -> int:
+    """Free space on the folder's file system, as an unprivileged process (the event store) may use it."""
+    usage = os.statvfs(directory)
+    return usage.f_bavail * usage.f_frsize
+
+
+def _own_files(directory: Path) -> list[tuple[str, int, int]]:
+    """The recorder's own files in the folder, oldest first: (name, size, bytes taken on the disk).
+    Names of the pattern, regular files only: nothing else is ever counted or deleted."""
+    files = []
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            if not NAME_PATTERN.fullmatch(entry.name):
+                continue
+            try:
+                if not entry.is_file(follow_symlinks=False):
+                    continue
+                stat = entry.stat(follow_symlinks=False)
+            except FileNotFoundError:
+                continue  # an uploader took it while we looked
+            files.append((entry.name, stat.st_size, stat.st_blocks * 512))
+    return sorted(files)
 
 
 def _fsync_directory(directory: Path) -> None:
