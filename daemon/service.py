@@ -26,7 +26,7 @@ from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.daemon.vocabulary import LoadState, Method
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
-from bogiemon.daemon.recorder import Recorder
+from bogiemon.daemon.recorder import Recorder, keep_the_reserve_free
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink, LogSink
 from bogiemon.daemon.store import EventStore, StoreError
@@ -118,6 +118,11 @@ class Service:
         signal.signal(signal.SIGHUP, on_reload)
 
     def run(self) -> int:
+        recorder_settings = self.config.recorder_settings()
+        if recorder_settings is not None:
+            # Recordings on a disk filled to its last pages (by an earlier version, say) would not even
+            # let the store open, and the recorder starts after it: their room first (docs/recorder.md).
+            keep_the_reserve_free(recorder_settings)
         try:
             store = EventStore(self.config.state.directory)
         except StoreError as exc:

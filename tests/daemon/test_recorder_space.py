@@ -27,7 +27,8 @@ from hypothesis.extra import numpy as hnp
 
 from bogiemon.daemon import recorder as recorder_module
 from bogiemon.daemon.config import BogiemonConfig, parse_config
-from bogiemon.daemon.delivery.schema import encode_status, status_from_monitor
+from bogiemon.daemon.delivery.status import status_from_monitor
+from bogiemon.daemon.messages import encode_status
 from bogiemon.daemon.events import Event, EventKind, Severity
 from bogiemon.daemon.monitor import STATE_KEY, Monitor
 from bogiemon.daemon.recorder import (
@@ -224,7 +225,7 @@ def real_bodies(tmp_path: Path) -> tuple[Event, dict, str]:
     monitor = Monitor(parse_config(short_windows_config(), "t").monitor_settings(), EventStore(tmp_path / "bodies"))
     events = [e for b in as_blocks(bogie_accel(20, 3, pitch_roll_coupling=1.0)) for e in monitor.feed(b)]
     confirmed = next(e for e in events if e.kind is EventKind.CONFIRMED)
-    status = encode_status(status_from_monitor(monitor, "wagon-2026-0042", 1.8e9, monitor.store.outbox_counts()))
+    status = encode_status(status_from_monitor(monitor, "wagon-2026-0042", 1.8e9, monitor.store.outbox.counts()))
     state = {STATE_KEY: monitor.state_dict()}
     monitor.store.close()
     return confirmed, state, status
@@ -250,7 +251,7 @@ def test_the_reserve_holds_what_the_event_store_takes_for_its_wal_events_and_sta
 
     empty = commit_all(lambda store, i: None, 0)
     with_events = commit_all(lambda store, i: store.append([Event.from_dict({**confirmed.as_dict(), "event_id": f"e{i}"})], state=state), events_n)
-    with_status = commit_all(lambda store, i: store.queue_status(1.8e9 + i, status), status_n)
+    with_status = commit_all(lambda store, i: store.outbox.queue_status(1.8e9 + i, status), status_n)
     per_event, per_status = (with_events - empty) / events_n, (with_status - with_events) / status_n
     # Measured here: the WAL at most 4 152 992 B; 860 B an event of 711 B with its state of 844 B;
     # 819 B a status message of 795 B; the store took 6.5 MB at most.
@@ -399,10 +400,11 @@ def test_the_next_start_on_a_disk_full_of_recordings_gives_their_room_back_and_c
     counters = service.recorder.counters
     kept = sorted(n for n in os.listdir(recordings) if n.startswith("2020"))
     assert kept == earlier[len(earlier) - len(kept) :] and 0 < len(kept) < len(earlier)  # the oldest gave the room back
-    assert counters.files_deleted == len(earlier) - len(kept) and counters.snapshots_written == 2
+    # Given back by the service before it opened the store (the recorder, not yet started, counts none).
+    assert counters.files_deleted == 0 and counters.snapshots_written == 2
     assert free_bytes(disk) >= reserve
     gave_back = next(e for e in logs if e["event"] == "deleted the oldest recordings to keep the event store's reserve free")
-    assert gave_back["needed_bytes"] == 0 and gave_back["free_bytes"] >= reserve
+    assert gave_back["needed_bytes"] == 0 and gave_back["free_bytes"] >= reserve and gave_back["files"] == len(earlier) - len(kept)
 
 
 def test_before_the_store_opens_the_reserve_is_given_back_on_a_disk_filled_to_the_last_page(tmpfs: Mount) -> None:
@@ -426,6 +428,32 @@ def test_before_the_store_opens_the_reserve_is_given_back_on_a_disk_filled_to_th
     store = EventStore(state)
     store.append([Event(time_s=1.8e9, kind=EventKind.CONFIRMED, severity=Severity.ALARM, config_hash="x")])
     store.close()
+
+
+def test_the_service_gives_the_reserve_back_before_it_opens_the_store_on_a_disk_filled_to_the_last_page(tmpfs: Mount, tmp_path: Path) -> None:
+    # As above, through the service: without the give-back before the store opens, the store's
+    # -shm finds no room, the start is refused, and no recorder ever runs to make room.
+    disk = tmpfs("disk", "24m")
+    state, recordings = disk / "state", disk / "state" / "recordings"
+    EventStore(state).close()
+    earlier = earlier_recordings(recordings, [1_000_000] * 24)
+    earlier.append("20200201T000000Z_confirmed.csv.gz")
+    fill_until_free(recordings / earlier[-1], 0)
+    config_path = tmp_path / "bogiemon.toml"
+    config_path.write_text(short_windows_config(state_dir=state) + f'[recorder]\nenabled = true\ndirectory = "{recordings}"\n')
+    reserve = settings_of(config_on(state, recordings)).reserve_bytes
+    blocks = as_blocks(bogie_accel(30, seed=2, pitch_roll_coupling=1.0), start_s=START_S)
+
+    def source(config: BogiemonConfig) -> GatedSource:
+        assert service.recorder is not None
+        return GatedSource(blocks, service.recorder.ready)
+
+    service = Service(config_path, source, sinks=[])
+    with structlog.testing.capture_logs() as logs:
+        assert service.run() == EXIT_OK
+    assert [e.kind.value for e in stored_events(state)] == ["SUSPECTED", "CONFIRMED"]
+    assert not [e for e in logs if e["log_level"] == "critical"]
+    assert free_bytes(disk) >= reserve
 
 
 # --- the recorder on a file system of its own ---------------------------------------------------------
