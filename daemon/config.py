@@ -256,6 +256,7 @@ class BogiemonConfig(Section):
             load_model=self.load_model() if load is LoadSetting.AUTO else None,
             load_states=self.load_signatures(),
             load_discriminant=self.load_discriminant() if load is LoadSetting.AUTO else None,
+            not_judged_after_s=3600.0 * self.decision.not_judged_after_h,
         )
 
     def recorder_settings(self) -> RecorderSettings | None:

@@ -195,6 +195,7 @@ class DecisionConfig(Section):
     confirm_k: int = Field(3, ge=1)
     confirm_n: int = Field(5, ge=1, le=100)
     clear_after_windows: int = Field(6, ge=1, le=100_000)
+    not_judged_after_h: float = Field(2.0, gt=0, le=10_000)
     thresholds: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = Field(default_factory=lambda: DEFAULT_THRESHOLDS)
     # The wagon's calibrated baselines (none shipped: without one a load is judged against the
     # fleet's population baseline, config/fused_model.toml).
