@@ -129,23 +129,30 @@ class UntrustedFile(io.RawIOBase):
     def fileno(self) -> int:
         return self._raw.fileno()
 
-    def readinto(self, buffer: memoryview | bytearray) -> int:  # type: ignore[override]
+    def read(self, size: int | None = -1) -> bytes:
+        """At most size bytes (all there are: -1 or None), within the bounds."""
+        if size is None or size < 0:
+            return self.read_whole()
         # One byte beyond the bound is asked for, so that a stream ending exactly at it is whole.
-        room = self.max_read_bytes + 1 - self._position
-        view = memoryview(buffer).cast("B")
-        if len(view) > room:
-            view = view[:room]
+        size = min(size, self.max_read_bytes + 1 - self._position)
         try:
-            n = (self._gzip if self._gzip is not None else self._raw).readinto(view)
+            data = (self._gzip if self._gzip is not None else self._raw).read(size) or b""
         except _GZIP_ERRORS as exc:
             self.refuse(gzip_problem(exc, self.kind))
         except OSError as exc:
             self.refuse(f"cannot read the {self.kind.name}: {exc.strerror or exc}")
-        n = n or 0
-        self._position += n
+        self._position += len(data)
         if self._position > self.max_read_bytes:
             self._refuse_too_long()
-        return n
+        return data
+
+    def readinto(self, buffer: memoryview | bytearray) -> int:  # type: ignore[override]
+        data = self.read(len(memoryview(buffer).cast("B")))
+        memoryview(buffer).cast("B")[: len(data)] = data
+        return len(data)
+
+    def readall(self) -> bytes:
+        return self.read_whole()
 
     def read_whole(self) -> bytes:
         """Everything there is (within the bounds): for small files."""
