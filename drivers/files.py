@@ -172,14 +172,16 @@ class UntrustedFile(io.RawIOBase):
 
     # -- lines -----------------------------------------------------------------------------------
 
-    def lines(self, first_number: int = 1, chunk_bytes: int = 1 << 20) -> Iterator[tuple[int, bytes]]:
+    def lines(self, first_number: int = 1, chunk_bytes: int = 1 << 20, skip_long: bool = False) -> Iterator[tuple[int, bytes | None]]:
         """(line number, bytes) of every line from here on, without its line break (CRLF, LF or CR).
 
-        A line longer than the kind's max_line_bytes is refused when that much of it has been read.
+        A line longer than the kind's max_line_bytes is refused when that much of it has been
+        read; with skip_long it is read to its end without being kept, and given as (number, None).
         """
         limit = self.kind.max_line_bytes
         number = first_number
         pending = b""
+        skipping = False  # inside a line too long, after the part of it that was read
         while True:
             chunk = self.read(chunk_bytes)
             data = pending + chunk
@@ -188,18 +190,28 @@ class UntrustedFile(io.RawIOBase):
             end = len(data) - 1 if chunk and data.endswith(b"\r") else len(data)
             for found in _LINE_BREAK.finditer(data, 0, end):
                 line = data[start : found.start()]
-                if len(line) > limit:
-                    self.refuse_line(number, f"longer than {size_text(limit)}")
-                yield number, line
+                if skipping or len(line) > limit:
+                    if not skip_long:
+                        self.refuse_line(number, f"longer than {size_text(limit)}")
+                    yield number, None
+                    skipping = False
+                else:
+                    yield number, line
                 number += 1
                 start = found.end()
             pending = data[start:]
             if len(pending) > limit:
-                self.refuse_line(number, f"longer than {size_text(limit)}")
+                if not skip_long:
+                    self.refuse_line(number, f"longer than {size_text(limit)}")
+                skipping, pending = True, pending[-1:] if pending.endswith(b"\r") else b""
             if not chunk:
-                if pending:
-                    yield number, pending
+                if pending or skipping:
+                    yield number, None if skipping else pending
                 return
+
+    def text_lines(self, encoding: str = "utf-8") -> TextLines:
+        """This file's lines as text, for a parser that iterates a text file (python-can's log readers)."""
+        return TextLines(self, encoding)
 
     # -- errors ----------------------------------------------------------------------------------
 
@@ -220,6 +232,44 @@ class UntrustedFile(io.RawIOBase):
                 f"no {self.kind.name} compresses that well (a compression bomb?); {self.kind.description}"
             )
         self.refuse(f"grew past {size_text(self.kind.max_bytes)} while it was read; {self.kind.too_large}")
+
+
+class LineTooLong(ValueError):
+    """A line longer than its kind allows, read to its end and not kept (TextLines)."""
+
+
+class TextLines:
+    """The lines of an UntrustedFile as text, for a parser that iterates a text file line by line
+    (python-can's .log and .asc readers): undecodable bytes replaced, each line ending in "\n".
+
+    A line longer than the kind's max_line_bytes is read to its end without being kept, and
+    raises LineTooLong at its place, once: a parser that counts a bad line and reads on from the
+    next one (drivers/replay.py) does so, in bounded memory, whatever the line's length.
+    """
+
+    def __init__(self, f: UntrustedFile, encoding: str = "utf-8") -> None:
+        self.file = f
+        self.encoding = encoding
+        self._lines = f.lines(skip_long=True)
+
+    def __iter__(self) -> TextLines:
+        return self
+
+    def __next__(self) -> str:
+        number, line = next(self._lines)
+        if line is None:
+            raise LineTooLong(f"{self.file.path}: line {number}: longer than {size_text(self.file.kind.max_line_bytes)}")
+        return line.decode(self.encoding, errors="replace") + "\n"
+
+    def readline(self) -> str:
+        return next(self, "")
+
+    @property
+    def closed(self) -> bool:
+        return self.file.closed
+
+    def close(self) -> None:
+        self.file.close()
 
 
 def gzip_problem(exc: BaseException, kind: FileKind) -> str:

@@ -23,7 +23,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
-from typing import TextIO
 
 import can
 import numpy as np
@@ -32,6 +31,7 @@ from numpy.typing import NDArray
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source, plausible_time
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.files import FileKind, TextLines, open_untrusted
 from bogiemon.drivers.recording import RecordingError, is_sample_recording_name, open_recording_reader
 from bogiemon.drivers.segments import SampleQueue
 
@@ -40,7 +40,16 @@ from bogiemon.drivers.segments import SampleQueue
 # counter period whatever its length, so waiting longer would change nothing but the wall time.
 MAX_PACED_PAUSE_S = 10.0
 REPLAY_COUNTERS = ("unreadable_entries",)  # log entries python-can could not parse (also bad_frames)
-RECORDING_COUNTERS = ("clipped_samples",)  # samples beyond the converter's range, clipped to its full scale
+RECORDING_COUNTERS = ("clipped_samples",)
+# A CAN log: a day of a hub at 500 Hz is about 3 GiB of candump -L text. Lines of a log are a
+# hundred bytes; a longer one than this is no frame, and is counted and skipped unread.
+CAN_LOG_FILE = FileKind(
+    name="CAN log",
+    description="a CAN log is a candump -L .log, a Vector .asc or .blf file",
+    max_bytes=16 << 30,
+    too_large="split the log into files of a few hours",
+    max_line_bytes=64 << 10,
+)  # samples beyond the converter's range, clipped to its full scale
 
 
 class RecordingReplaySource(Source):
@@ -257,11 +266,11 @@ class CanLogReplaySource(Source):
 class _ResumedAscReader(can.ASCReader):
     """An ASCReader reading on where another one failed, with the header settings that one read."""
 
-    def __init__(self, file: TextIO, failed: can.ASCReader) -> None:
+    def __init__(self, file: TextLines, failed: can.ASCReader) -> None:
         # The failed reader's base comes from the file's header, in any case ("base HEX" parses):
         # the constructor takes only "hex" or "dec"; anything else falls back to its default.
         base = str(failed.base).lower()
-        super().__init__(file, base=base if base in ("hex", "dec") else "hex", relative_timestamp=failed.relative_timestamp)
+        super().__init__(file, base=base if base in ("hex", "dec") else "hex", relative_timestamp=failed.relative_timestamp)  # type: ignore[arg-type]
         self.date = failed.date
         self.start_time = failed.start_time
         self.timestamps_format = failed.timestamps_format
@@ -299,8 +308,9 @@ class _LogEntries:
     """The messages of a CAN log; an entry python-can cannot parse is reported and skipped.
 
     Text logs are opened here (UTF-8, undecodable bytes replaced, so a bad byte spoils only its
-    own line) and a fresh reader goes on over the same file object from the line after the one
-    its predecessor failed on. A binary log cannot be resynchronised: the messages end there.
+    own line; a line longer than CAN_LOG_FILE allows is not even read whole) and a fresh reader
+    goes on over the same file object from the line after the one its predecessor failed on. A
+    binary log cannot be resynchronised: the messages end there.
     """
 
     RESUMABLE = (".log", ".asc")
@@ -308,28 +318,36 @@ class _LogEntries:
     def __init__(self, path: Path, on_unreadable: Callable[[str], None]) -> None:
         self.path = path
         self._on_unreadable = on_unreadable
-        self._file: TextIO | None = None
+        self._file: TextLines | None = None
         suffix = path.suffix.lower()
+        # A regular file within the size cap (drivers/files.py); a text log's lines are bounded too:
+        # a longer one is an unreadable line, counted and skipped like any other.
+        untrusted = open_untrusted(path, CAN_LOG_FILE, RecordingError)
         try:
             if suffix in self.RESUMABLE:
-                self._file = path.open("r", encoding="utf-8", errors="replace", newline=None)
+                self._file = untrusted.text_lines()
                 self._reader: can.io.generic.MessageReader = (
-                    can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)
+                    can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)  # type: ignore[arg-type]
                 )
             elif suffix == ".blf":
-                self._reader = _CheckedBlfReader(str(path))
+                self._reader = _CheckedBlfReader(untrusted)
             else:
+                untrusted.close()  # checked; python-can's reader for the suffix opens it by name
                 self._reader = can.LogReader(str(path))
-        except OSError as exc:
-            raise RecordingError(f"{path}: cannot read the CAN log: {exc.strerror or exc}") from None
-        except ValueError as exc:
-            if "unknown log format" in str(exc):  # python-can names no reader for the suffix
+        except BaseException as exc:
+            untrusted.close()
+            if isinstance(exc, OSError):
+                raise RecordingError(f"{path}: cannot read the CAN log: {exc.strerror or exc}") from None
+            if isinstance(exc, ValueError) and "unknown log format" in str(exc):  # python-can names no reader for the suffix
                 raise RecordingError(
-                    f"{path}: not a recording bogiemon replays: use a .csv recording or a CAN log "
+                    f"{path}: not a recording bogiemon replays: use a recording (.csv, .csv.gz, .parquet) or a CAN log "
                     "(.log from candump -L, .asc, .blf)"
                 ) from None
-            raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
-        except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad header
+            if isinstance(exc, RecordingError | KeyboardInterrupt | SystemExit):
+                raise
+            if isinstance(exc, ValueError):
+                raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
+            # Each python-can reader raises its own kind for a bad header.
             raise RecordingError(f"{path}: not a readable CAN log ({type(exc).__name__}: {exc})") from None
 
     def __iter__(self) -> Iterator[can.Message]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import threading
 from pathlib import Path
 
@@ -358,3 +359,21 @@ def test_clipped_samples_are_counted_by_the_replay_source(tmp_path: Path) -> Non
     got = np.concatenate([b.accel_mps2 for b in drain(source)])
     assert source.counters.extra["clipped_samples"] == 10
     assert np.all(got[400:410, 1] == MAX_ACCEL_MPS2) and np.isfinite(got).all()
+
+
+def test_a_log_line_of_megabytes_is_counted_and_skipped_unread_and_the_rest_replays(tmp_path: Path) -> None:
+    path = tmp_path / "long.log"
+    lines = log_lines(path, HUB, 200)
+    lines.insert(100, "(1000.1) vcan0 100#" + "0" * (8 << 20))  # 8 MiB on one line, in the middle
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    assert sum(b.n_samples for b in drain(source)) == 200
+    assert source.counters.extra["unreadable_entries"] == 1
+    assert "long.log: line 101: longer than 64 KiB" in source.last_error
+
+
+def test_a_fifo_named_as_a_recording_is_refused_without_blocking(tmp_path: Path) -> None:
+    for name in ("pipe.csv", "pipe.log"):
+        os.mkfifo(tmp_path / name)  # nobody writes to it: an open for reading would block
+        with pytest.raises(RecordingError, match=rf"{name}: not a regular file; a (recording|CAN log) is"):
+            open_replay(tmp_path / name, rate=0, layout=HUB, fs_hz=FS_HZ)
