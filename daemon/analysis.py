@@ -8,9 +8,11 @@ with a RecordingError after the windows before it were given.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Generator, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.detection import IndicatorStream, ProcessingSettings, WindowIndicators
@@ -53,8 +55,52 @@ def analyze_recording(
     settings = recording_settings(recording.path, recording.fs_hz, config)
     clip = config.health.clip_level_mps2 if clip_level_mps2 is None else clip_level_mps2
     stream = IndicatorStream(settings, config.bogie_geometry(), recording.start_s, clip)
-    for _, accel_mps2 in recording.chunks():
+    for _, accel_mps2 in read_ahead(recording.chunks()):
         yield from stream.process(accel_mps2)
+
+
+T = TypeVar("T")
+
+
+def read_ahead(items: Generator[T, None, None], depth: int = 1) -> Iterator[T]:
+    """items, produced in a thread of their own up to `depth` ahead of the consumer: a recording's
+    next chunk is read and parsed (pyarrow, without the GIL) while the core works on this one.
+    What the producer raises is raised here, in order; stopping early stops and closes it."""
+    ready: queue.Queue[tuple[T | None, BaseException | None, bool]] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(entry: tuple[T | None, BaseException | None, bool]) -> bool:
+        while not stop.is_set():
+            try:
+                ready.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if not put((item, None, False)):
+                    return
+            put((None, None, True))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer, raised there
+            put((None, exc, True))
+
+    producer = threading.Thread(target=produce, name="bogiemon-read-ahead", daemon=True)
+    producer.start()
+    try:
+        while True:
+            item, error, done = ready.get()
+            if error is not None:
+                raise error
+            if done:
+                return
+            yield item  # type: ignore[misc]
+    finally:
+        stop.set()
+        producer.join()
+        items.close()
 
 
 def indicators_as_dict(ind: WindowIndicators) -> dict[str, Any]:

@@ -147,7 +147,7 @@ class Recording:
             for i in range(0, self.n_samples, block_n)
         ]
 
-    def chunks(self, chunk_n: int = 65536) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    def chunks(self, chunk_n: int = 65536) -> Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None]:
         """(time_s, accel_mps2) in consecutive chunks, as RecordingReader.chunks gives them."""
         for i in range(0, self.n_samples, chunk_n):
             yield self.time_s[i : i + chunk_n], self.accel_mps2[i : i + chunk_n]
