@@ -18,8 +18,11 @@ as one line naming the file and what to do:
 
 The API, for any reader of outside files (fleet/ included):
 
-    open_untrusted(path, kind, error=RecordingError) -> UntrustedFile   # a binary stream, lines()
+    open_untrusted(path, kind, error=RecordingError) -> UntrustedFile   # a binary stream
     read_untrusted(path, kind, error=ConfigError) -> bytes              # a whole small file
+    UntrustedFile.lines() -> (number, bytes) ...; .text_lines() -> TextLines (for python-can)
+
+An UntrustedFile that is not compressed is seekable: pyarrow.parquet.ParquetFile(f) reads one.
 
 `error` is the caller's own user-error class (ConfigError, RecordingError, ...), raised with a
 message `"<path>: <what is wrong>; <what to do>"`, so each caller keeps catching what it caught.
@@ -90,8 +93,9 @@ def short_name(path: str | os.PathLike[str], limit: int = 80) -> str:
 
 class UntrustedFile(io.RawIOBase):
     """A regular file opened by open_untrusted: its bytes (decompressed if it was gzip), within
-    its kind's bounds. A readable binary stream (read, readinto, readline, tell) that pyarrow and
-    the standard library can read from; every refusal is the caller's error class."""
+    its kind's bounds. A readable binary stream (read, readinto, tell; seek when not compressed)
+    that pyarrow and the standard library can read from, with its lines bounded (lines,
+    text_lines); every refusal is the caller's error class."""
 
     def __init__(self, path: Path, kind: FileKind, error: type[Exception], fd: int, size_bytes: int, compressed: bool) -> None:
         super().__init__()

@@ -1,8 +1,8 @@
 """Replay sources: a recording of samples or a CAN log played back as if live, then EndOfStream.
 
 Recordings of samples (drivers/recording.py: .csv, .csv.gz, .parquet) come back as they were
-written, read as they are replayed: the block times are the file's time_s. CAN logs are anything python-can reads by suffix
-(candump -L .log, Vector .asc and .blf, ...), decoded with the DBC through the same
+written, read as they are replayed: the block times are the file's time_s. CAN logs are anything
+python-can reads by suffix (candump -L .log, Vector .asc and .blf, ...), decoded with the DBC through the same
 CanFrameDecoder as the live CAN source, so a log with lost, repeated or foreign frames, or frames
 with unusable time stamps, is counted and segmented exactly as on the bus; the block times come
 from the log's time stamps (absolute in .log and .blf, from 0 in .asc).
@@ -40,7 +40,7 @@ from bogiemon.drivers.segments import SampleQueue
 # counter period whatever its length, so waiting longer would change nothing but the wall time.
 MAX_PACED_PAUSE_S = 10.0
 REPLAY_COUNTERS = ("unreadable_entries",)  # log entries python-can could not parse (also bad_frames)
-RECORDING_COUNTERS = ("clipped_samples",)
+RECORDING_COUNTERS = ("clipped_samples",)  # samples beyond the converter's range, clipped to its full scale
 # A CAN log: a day of a hub at 500 Hz is about 3 GiB of candump -L text. Lines of a log are a
 # hundred bytes; a longer one than this is no frame, and is counted and skipped unread.
 CAN_LOG_FILE = FileKind(
@@ -49,7 +49,7 @@ CAN_LOG_FILE = FileKind(
     max_bytes=16 << 30,
     too_large="split the log into files of a few hours",
     max_line_bytes=64 << 10,
-)  # samples beyond the converter's range, clipped to its full scale
+)
 
 
 class RecordingReplaySource(Source):
@@ -324,30 +324,32 @@ class _LogEntries:
         # a longer one is an unreadable line, counted and skipped like any other.
         untrusted = open_untrusted(path, CAN_LOG_FILE, RecordingError)
         try:
-            if suffix in self.RESUMABLE:
-                self._file = untrusted.text_lines()
-                self._reader: can.io.generic.MessageReader = (
-                    can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)  # type: ignore[arg-type]
-                )
-            elif suffix == ".blf":
-                self._reader = _CheckedBlfReader(untrusted)
-            else:
-                untrusted.close()  # checked; python-can's reader for the suffix opens it by name
-                self._reader = can.LogReader(str(path))
-        except BaseException as exc:
-            untrusted.close()
-            if isinstance(exc, OSError):
-                raise RecordingError(f"{path}: cannot read the CAN log: {exc.strerror or exc}") from None
-            if isinstance(exc, ValueError) and "unknown log format" in str(exc):  # python-can names no reader for the suffix
+            try:
+                if suffix in self.RESUMABLE:
+                    self._file = untrusted.text_lines()
+                    self._reader: can.io.generic.MessageReader = (
+                        can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)  # type: ignore[arg-type]
+                    )
+                elif suffix == ".blf":
+                    self._reader = _CheckedBlfReader(untrusted)
+                else:
+                    untrusted.close()  # checked; python-can's reader for the suffix opens it by name
+                    self._reader = can.LogReader(str(path))
+            except BaseException:
+                untrusted.close()
+                raise
+        except RecordingError:  # drivers/files.py's own refusal, already naming the file
+            raise
+        except OSError as exc:
+            raise RecordingError(f"{path}: cannot read the CAN log: {exc.strerror or exc}") from None
+        except ValueError as exc:
+            if "unknown log format" in str(exc):  # python-can names no reader for the suffix
                 raise RecordingError(
                     f"{path}: not a recording bogiemon replays: use a recording (.csv, .csv.gz, .parquet) or a CAN log "
                     "(.log from candump -L, .asc, .blf)"
                 ) from None
-            if isinstance(exc, RecordingError | KeyboardInterrupt | SystemExit):
-                raise
-            if isinstance(exc, ValueError):
-                raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
-            # Each python-can reader raises its own kind for a bad header.
+            raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad header
             raise RecordingError(f"{path}: not a readable CAN log ({type(exc).__name__}: {exc})") from None
 
     def __iter__(self) -> Iterator[can.Message]:
