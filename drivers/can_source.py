@@ -30,12 +30,10 @@ from collections.abc import Callable
 
 import can
 
-from bogiemon.drivers.base import Block, HealthCounters, Source
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import BusRole, bus_kind, open_bus
-from bogiemon.drivers.reconnect import Backoff
-from bogiemon.drivers.segments import SampleQueue
+from bogiemon.drivers.live import LiveSource
 
 # Linux socket options Python's socket module does not name (asm-generic/socket.h values,
 # those of x86, arm and arm64).
@@ -119,8 +117,15 @@ def socket_drops(sock: socket.socket) -> int | None:
     return int(struct.unpack_from("=I", raw, 4 * SK_MEMINFO_DROPS)[0])
 
 
-class CanSource(Source):
-    """Blocks from a CAN bus carrying one of the DBC's layouts (docs/drivers.md)."""
+class CanSource(LiveSource):
+    """Blocks from a CAN bus carrying one of the DBC's layouts (docs/drivers.md).
+
+    The read loop, the counting and the reconnection are LiveSource's; this class opens and
+    closes the bus through its port and gathers and decodes its frames.
+    """
+
+    device_errors = (can.CanError, OSError)
+    open_errors = device_errors
 
     def __init__(
         self,
@@ -134,69 +139,45 @@ class CanSource(Source):
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
+        super().__init__(fs_hz, max_block_s, backoff_min_s, backoff_max_s, clock, sleep)
         self.port = port
         self.layout = layout
-        self.fs_hz = fs_hz
-        self.counters = HealthCounters()
-        self.max_block_n = max(1, round(max_block_s * fs_hz))
+        self.description = port.description
         if coalesce_s is None:
             coalesce_s = min(MAX_COALESCE_S, COALESCE_FRAMES / (fs_hz * layout.frames_per_instant))
         if coalesce_s < 0:
             raise ValueError(f"coalesce_s must be >= 0 (0: wake for every frame), got {coalesce_s}")
         self.coalesce_s = coalesce_s
-        self._queue = SampleQueue(fs_hz)
         self._decoder = CanFrameDecoder(layout, fs_hz, self.counters, self._queue)
-        self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
-        self._clock = clock
-        self._sleep = sleep
-        self._bus: can.BusABC | None = None
-        self._opened_before = False
         self._drops_seen = 0  # the current bus's kernel drop count already counted
-        self._frames_at_open = 0
-        self._try_open()
+        self._start()
 
-    @property
-    def connected(self) -> bool:
-        return self._bus is not None
+    def _open(self) -> can.BusABC:
+        bus = self.port.open()
+        self._drops_seen = self.port.dropped_frames(bus) or 0
+        return bus
 
-    def read(self, timeout_s: float) -> Block | None:
-        deadline = self._clock() + timeout_s
-        while not self._queue.full_block_ready(self.max_block_n):
-            remaining_s = deadline - self._clock()
-            if remaining_s <= 0:
-                break
-            if self._bus is None and not self._try_open():
-                self._sleep(min(remaining_s, max(self._backoff.due_in_s(), 1e-3)))
-                continue
-            self._receive(remaining_s)
-        block = self._queue.take(self.max_block_n)
-        self.counters.gaps = self._queue.gaps
-        if block is None:
-            self.counters.timeouts += 1
-        return block
+    def _close(self, device: can.BusABC) -> None:
+        device.shutdown()
 
-    def _receive(self, remaining_s: float) -> None:
-        """Gather frames until a block's worth is in or remaining_s is over, then decode them."""
-        bus = self._bus
-        assert bus is not None
-        wanted = max(1, self.max_block_n - self._queue.n_pending) * self.layout.frames_per_instant
-        end_s = self._clock() + remaining_s
+    def _restart(self) -> None:
+        self._decoder.restart()
+
+    def _receive(self, device: can.BusABC, timeout_s: float, wanted_n: int) -> None:
+        """Gather frames until wanted_n instants' worth are in or timeout_s is over, then decode them."""
+        wanted = wanted_n * self.layout.frames_per_instant
+        end_s = self._clock() + timeout_s
         messages: list[can.Message] = []
         try:
-            message = bus.recv(timeout=remaining_s)  # an idle bus: block until a frame comes
+            message = device.recv(timeout=timeout_s)  # an idle bus: block until a frame comes
             while message is not None:
                 messages.append(message)
                 if len(messages) >= wanted:
                     break
-                message = self._next_frame(bus, end_s)
-        except (can.CanError, OSError) as exc:
-            self._decoder.feed(messages)
-            self._lose_bus(exc)
-            return
-        self._decoder.feed(messages)
-        self._count_kernel_drops(bus)
-        if self.counters.frames > self._frames_at_open:
-            self._backoff.reset()  # data flows: a later loss retries quickly again
+                message = self._next_frame(device, end_s)
+        finally:
+            self._decoder.feed(messages)  # the frames received before a failure too
+        self._count_kernel_drops(device)
 
     def _next_frame(self, bus: can.BusABC, end_s: float) -> can.Message | None:
         """The next frame of a batch being gathered, None once none comes before end_s.
@@ -221,46 +202,3 @@ class CanSource(Source):
             # No restart here: the loss shows in the counters and, for long losses, in the
             # receive times (kernel time stamps), exactly where it happened in the stream.
             self._drops_seen = drops
-
-    def _try_open(self) -> bool:
-        if self._backoff.due_in_s() > 0:
-            return False
-        try:
-            bus = self.port.open()
-        except (can.CanError, OSError) as exc:
-            self.counters.add("open_failures")
-            wait_s = self._backoff.failed()
-            self.last_error = f"{self.port.description}: cannot open: {_reason(exc)}; retrying in {wait_s:g} s"
-            return False
-        if self._opened_before:
-            self.counters.reconnects += 1
-        self._opened_before = True
-        self._bus = bus
-        self._drops_seen = self.port.dropped_frames(bus) or 0
-        self._frames_at_open = self.counters.frames
-        self._decoder.restart()
-        return True
-
-    def _lose_bus(self, exc: BaseException) -> None:
-        self.counters.add("disconnects")
-        wait_s = self._backoff.failed()
-        self.last_error = f"{self.port.description}: lost: {_reason(exc)}; reopening in {wait_s:g} s"
-        self._close_bus()
-        self._decoder.restart()
-
-    def _close_bus(self) -> None:
-        bus, self._bus = self._bus, None
-        if bus is not None:
-            try:
-                bus.shutdown()
-            except (can.CanError, OSError):
-                pass  # the interface is already gone; nothing left to release
-
-    def close(self) -> None:
-        self._close_bus()
-
-
-def _reason(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    return str(exc) or type(exc).__name__
