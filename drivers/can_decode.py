@@ -1,9 +1,10 @@
 """CAN frames in, checked and aligned samples out: the part of the CAN source that sees frames.
 
-CanFrameDecoder takes python-can Messages in batches (whatever a read() gathered), sorts them
-into error frames, remote frames, unknown identifiers, wrong lengths and frames of the layout,
-decodes the latter with the compiled DBC in one pass of numpy per batch, checks the sequence
-counter and hands the accepted samples to a SampleQueue. It never raises for what is on the bus.
+CanFrameDecoder takes frames in batches (whatever a read() gathered) as the columns of a
+FrameBatch (drivers/can_frames.py), or as python-can Messages (replay), sorts them into error
+frames, remote frames, unknown identifiers, wrong lengths and frames of the layout, decodes the
+latter with the compiled DBC in one pass of numpy per batch, checks the sequence counter and
+hands the accepted samples to a SampleQueue. It never raises for what is on the bus.
 
 Every received frame lands in exactly one of: counters.frames (well-formed frames of the layout,
 the Sync included, even those the counter check then drops as duplicates or out of order),
@@ -22,15 +23,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
-from bogiemon.drivers.candb import CAN_EFF_KEY, CanLayout, MessageCodec
+from bogiemon.drivers.can_frames import (  # noqa: F401 - the error classes, also named here for callers
+    BUS_OFF,
+    CAN_ERR_BUSOFF,
+    CAN_ERR_CRTL,
+    CAN_ERR_CRTL_RX_OVERFLOW,
+    CAN_EXT_ID_MAX,
+    CAN_STD_ID_MAX,
+    ERROR,
+    REMOTE,
+    RX_OVERFLOW,
+    FrameBatch,
+)
+from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker, TimestampGuard
-
-# Error classes in the identifier of a SocketCAN error frame (linux/can/error.h).
-CAN_ERR_CRTL = 0x004  # controller problem, details in data[1]
-CAN_ERR_BUSOFF = 0x040
-CAN_ERR_CRTL_RX_OVERFLOW = 0x01  # data[1]: the controller's receive FIFO overflowed
-CAN_STD_ID_MAX = 0x7FF  # the largest 11-bit identifier
-CAN_EXT_ID_MAX = 0x1FFFFFFF  # the largest 29-bit identifier
 
 CAN_COUNTERS = (
     "duplicates",  # a frame with the counter of the one just accepted: dropped
@@ -76,8 +82,16 @@ class CanFrameDecoder:
             counters.extra.setdefault(name, 0)
         modulus = layout.counter_modulus
         silence_s = max_silence_s(modulus, fs_hz)
-        self._keys = {m.key: m for m in layout.messages}
-        self._other_keys = np.fromiter(layout.other_keys, np.int64, len(layout.other_keys))
+        # Each frame's class: the index of its message in layout.messages (for the per-node
+        # layout the channel of a node, then the Sync), OTHER for the DBC's other messages,
+        # UNKNOWN for the rest; looked up by key in one searchsorted per batch.
+        self._messages = layout.messages
+        self._other = len(self._messages)
+        self._unknown = self._other + 1
+        by_key = {**dict.fromkeys(layout.other_keys, self._other), **{m.key: i for i, m in enumerate(self._messages)}}
+        self._sorted_keys = np.array(sorted(by_key), dtype=np.int64)
+        self._class_of_key = np.array([by_key[k] for k in self._sorted_keys.tolist()] + [self._unknown], dtype=np.int64)
+        self._length_of_class = np.array([m.length for m in self._messages] + [-1, -1], dtype=np.int64)
         self._guard = TimestampGuard(counters)
         self._tracker = SequenceTracker(modulus, silence_s)
         self._aligner = NodeAligner(modulus, silence_s) if layout.name == "per-node" else None
@@ -90,85 +104,79 @@ class CanFrameDecoder:
         self.queue.close_segment()
 
     def feed(self, messages: Sequence[can.Message]) -> None:
+        """Decode a batch of python-can Messages in arrival order (replay, tests)."""
+        if messages:
+            self.feed_frames(FrameBatch.from_messages(messages))
+
+    def feed_frames(self, frames: FrameBatch) -> None:
         """Decode a batch of frames in arrival order."""
-        if not messages:
+        if frames.n == 0:
             return
-        errors = [i for i, m in enumerate(messages) if m.is_error_frame]
+        errors = np.flatnonzero(frames.flags & ERROR)
+        if errors.size == 0:
+            self._feed_frames(frames)
+            return
         start = 0
-        for i in errors:  # a bus-off splits the batch: nothing is bridged across it
-            self._feed_frames(messages[start:i])
-            if self._count_error_frame(messages[i]):
+        for i in errors.tolist():  # a bus-off splits the batch: nothing is bridged across it
+            self._feed_frames(frames[start:i])
+            if self._count_error_frame(int(frames.flags[i])):
                 self.restart()
             start = i + 1
-        self._feed_frames(messages[start:] if start else messages)
+        self._feed_frames(frames[start:])
 
-    def _count_error_frame(self, message: can.Message) -> bool:
+    def _count_error_frame(self, flags: int) -> bool:
         """Count an error frame; True if it reports bus-off."""
         self.counters.add("error_frames")
-        error_class = message.arbitration_id
-        if error_class & CAN_ERR_CRTL and len(message.data) > 1 and message.data[1] & CAN_ERR_CRTL_RX_OVERFLOW:
+        if flags & RX_OVERFLOW:
             self.counters.add("rx_overflow")
-        if error_class & CAN_ERR_BUSOFF:
+        if flags & BUS_OFF:
             self.counters.add("bus_off")
             return True
         return False
 
-    def _feed_frames(self, messages: Sequence[can.Message]) -> None:
-        if not messages:
+    def _feed_frames(self, frames: FrameBatch) -> None:
+        if frames.n == 0:
             return
-        times_s = _times_of(messages)
-        passed = self._guard.check(times_s)  # counts what it rejects
+        passed = self._guard.check(frames.time_s)  # counts what it rejects
         if not passed.all():
-            messages = [m for m, ok in zip(messages, passed.tolist(), strict=True) if ok]
-            times_s = times_s[passed]
-            if not messages:
+            frames = frames[passed]
+            if frames.n == 0:
                 return
-        keys = _keys_of(messages)
-        remote = np.fromiter((m.is_remote_frame for m in messages), bool, len(messages))
-        lengths = np.fromiter((len(m.data) for m in messages), np.int64, len(messages))
-        n_remote = int(remote.sum())
-        if n_remote:
-            self.counters.add("remote_frames", n_remote)
-            self.counters.bad_frames += n_remote
-        known = np.zeros(len(messages), bool)
-        good: dict[int, NDArray[np.intp]] = {}
-        for key, codec in self._keys.items():
-            mine = (keys == key) & ~remote
-            known |= mine
-            ok = mine & (lengths == codec.length)
-            n_wrong = int(mine.sum() - ok.sum())
-            if n_wrong:
-                self.counters.add("wrong_length", n_wrong)
-                self.counters.bad_frames += n_wrong
-            good[key] = np.flatnonzero(ok)
-            self.counters.frames += good[key].size
-        other = np.isin(keys, self._other_keys) & ~remote
-        n_other = int((other & ~known).sum())
-        if n_other:
-            self.counters.add("other_dbc_frames", n_other)
-        n_unknown = int((~known & ~other & ~remote).sum())
-        if n_unknown:
-            self.counters.add("unknown_ids", n_unknown)
-            self.counters.bad_frames += n_unknown
+        position = np.minimum(np.searchsorted(self._sorted_keys, frames.key), self._sorted_keys.size - 1)
+        known = self._sorted_keys[position] == frames.key
+        frame_class = np.where(known, self._class_of_key[position], self._unknown)
+        remote = (frames.flags & REMOTE) != 0
+        layout_frame = (frame_class < self._other) & ~remote
+        good = layout_frame & (frames.length == self._length_of_class[frame_class])
+        n_good = int(good.sum())
+        self.counters.frames += n_good
+        if n_good < frames.n:  # something else than well-formed frames of the layout: count it
+            n_remote = int(remote.sum())
+            n_wrong = int(layout_frame.sum()) - n_good
+            n_other = int(((frame_class == self._other) & ~remote).sum())
+            n_unknown = frames.n - n_remote - int(layout_frame.sum()) - n_other
+            for name, count in (("remote_frames", n_remote), ("wrong_length", n_wrong), ("unknown_ids", n_unknown)):
+                if count:
+                    self.counters.add(name, count)
+                    self.counters.bad_frames += count
+            if n_other:
+                self.counters.add("other_dbc_frames", n_other)
         if self.layout.hub is not None:
-            self._feed_hub(messages, good[self.layout.hub.key], times_s)
+            index = np.flatnonzero(good) if n_good < frames.n else None
+            self._feed_hub(frames, index)
         else:
-            self._feed_nodes(messages, good, times_s)
+            self._feed_nodes(frames, np.flatnonzero(good & (frame_class < len(self.layout.nodes))), frame_class)
 
-    @staticmethod
-    def _payloads(messages: Sequence[can.Message], index: NDArray[np.intp], codec: MessageCodec) -> NDArray[np.uint8]:
-        raw = b"".join([messages[i].data for i in index.tolist()])
-        return np.frombuffer(raw, dtype=np.uint8).reshape(index.size, codec.length)
-
-    def _feed_hub(self, messages: Sequence[can.Message], index: NDArray[np.intp], all_times_s: NDArray[np.float64]) -> None:
-        if index.size == 0:
-            return
+    def _feed_hub(self, frames: FrameBatch, index: NDArray[np.intp] | None) -> None:
+        """The hub's frames (index: which of the batch; None: all of them)."""
         codec = self.layout.hub
         assert codec is not None
-        le, be = codec.words(self._payloads(messages, index, codec))
+        data, times_s = (frames.data, frames.time_s) if index is None else (frames.data[index], frames.time_s[index])
+        if data.shape[0] == 0:
+            return
+        le, be = codec.words(data[:, : codec.length])
         sig = codec.signals
         counter = sig["Counter"].raw(le, be)
-        times_s = all_times_s[index]
         verdict = self._tracker.check(counter, times_s)
         self._count_verdict(verdict.duplicates, verdict.out_of_order, verdict.lost)
         keep = verdict.accept
@@ -181,35 +189,25 @@ class CanFrameDecoder:
         )
         self.queue.append(accel, status, verdict.new_segment[keep], times_s[keep])
 
-    def _feed_nodes(
-        self, messages: Sequence[can.Message], good: dict[int, NDArray[np.intp]], all_times_s: NDArray[np.float64]
-    ) -> None:
+    def _feed_nodes(self, frames: FrameBatch, index: NDArray[np.intp], frame_class: NDArray[np.int64]) -> None:
+        """The nodes' frames (index: which of the batch, in arrival order), joined into instants."""
         assert self._aligner is not None
-        parts = []
-        for channel, codec in enumerate(self.layout.nodes):
-            index = good[codec.key]
-            if index.size == 0:
-                continue
-            le, be = codec.words(self._payloads(messages, index, codec))
-            sig = codec.signals
-            parts.append(
-                (
-                    index,
-                    np.full(index.size, channel),
-                    sig["Counter"].raw(le, be),
-                    sig["Accel"].decode(le, be),
-                    status_bits(sig["OverRange"].raw(le, be), sig["SensorFault"].raw(le, be)),
-                )
-            )
-        if not parts:
+        if index.size == 0:
             return
-        order = np.argsort(np.concatenate([p[0] for p in parts]), kind="stable")  # back to arrival order
-        index = np.concatenate([p[0] for p in parts])[order]
-        channel = np.concatenate([p[1] for p in parts])[order]
-        counter = np.concatenate([p[2] for p in parts])[order]
-        value = np.concatenate([p[3] for p in parts])[order]
-        status = np.concatenate([p[4] for p in parts])[order]
-        out = self._aligner.push(channel, counter, value, status, all_times_s[index])
+        channel = frame_class[index]
+        counter = np.empty(index.size, np.int64)
+        value = np.empty(index.size, np.float64)
+        status = np.empty(index.size, np.uint8)
+        for c, codec in enumerate(self.layout.nodes):
+            mine = channel == c
+            if not mine.any():
+                continue
+            le, be = codec.words(frames.data[index[mine], : codec.length])
+            sig = codec.signals
+            counter[mine] = sig["Counter"].raw(le, be)
+            value[mine] = sig["Accel"].decode(le, be)
+            status[mine] = status_bits(sig["OverRange"].raw(le, be), sig["SensorFault"].raw(le, be))
+        out = self._aligner.push(channel, counter, value, status, frames.time_s[index])
         self._count_verdict(out.duplicates, out.out_of_order, out.lost)
         self.queue.append(out.accel_mps2, out.status, out.new_segment, out.times_s)
 
@@ -220,41 +218,6 @@ class CanFrameDecoder:
             self.counters.add("out_of_order", out_of_order)
         if lost:
             self.counters.add("lost_samples", lost)
-
-
-def _times_of(messages: Sequence[can.Message]) -> NDArray[np.float64]:
-    """The frames' receive times in seconds; NaN for a stamp that is not a number (the guard drops it)."""
-    try:
-        return np.fromiter((m.timestamp for m in messages), np.float64, len(messages))
-    except (TypeError, ValueError, OverflowError):
-        return np.array([_as_float(m.timestamp) for m in messages], dtype=np.float64)
-
-
-def _as_float(value: object) -> float:
-    try:
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError, OverflowError):
-        return float("nan")
-
-
-def _keys_of(messages: Sequence[can.Message]) -> NDArray[np.int64]:
-    """Frame keys (identifier | CAN_EFF_KEY for 29-bit ones); -1 for an identifier no CAN frame can carry.
-
-    python-can's readers take identifiers as written: an .asc line may hold one too large for a
-    C long, and a standard frame's beyond 11 bits would alias a 29-bit key.
-    """
-    n = len(messages)
-    extended = np.fromiter((bool(m.is_extended_id) for m in messages), bool, n)
-    try:
-        ids = np.fromiter((m.arbitration_id for m in messages), np.int64, n)
-    except (TypeError, ValueError, OverflowError):
-        ids = np.fromiter((_id_or_minus_one(m.arbitration_id) for m in messages), np.int64, n)
-    valid = (ids >= 0) & (ids <= np.where(extended, CAN_EXT_ID_MAX, CAN_STD_ID_MAX))
-    return np.where(valid, ids | np.where(extended, CAN_EFF_KEY, 0), -1)
-
-
-def _id_or_minus_one(arbitration_id: object) -> int:
-    return arbitration_id if isinstance(arbitration_id, int) and 0 <= arbitration_id <= CAN_EXT_ID_MAX else -1
 
 
 class AlignedSamples:

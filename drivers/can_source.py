@@ -31,6 +31,7 @@ from collections.abc import Callable
 import can
 
 from bogiemon.drivers.can_decode import CanFrameDecoder
+from bogiemon.drivers.can_frames import BusFrameReader, FrameReader
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import BusRole, bus_kind, open_bus
 from bogiemon.drivers.live import LiveSource
@@ -49,13 +50,17 @@ MAX_COALESCE_S = 0.05
 
 
 class BusPort(ABC):
-    """How a CanSource gets (and gets again) its bus."""
+    """How a CanSource gets (and gets again) its bus, and takes its frames off it."""
 
     description: str
 
     @abstractmethod
     def open(self) -> can.BusABC:
         """A new bus; raises OSError or can.CanError if the interface is not there."""
+
+    def frame_reader(self, bus: can.BusABC, capacity: int) -> FrameReader:
+        """What takes bus's frames off it, up to capacity between two takes: python-can's recv here."""
+        return BusFrameReader(bus)
 
     def dropped_frames(self, bus: can.BusABC) -> int | None:
         """Frames the bus's receive queue had to drop so far, if the interface can tell."""
@@ -65,12 +70,12 @@ class BusPort(ABC):
 class CanBusPort(BusPort):
     """A python-can bus of a kind of drivers/canbus.py ('socketcan', 'virtual') on one channel.
 
-    Where the bus has a socket (SocketCAN), its receive buffer holds the frames that arrive while
-    the daemon is busy; each frame costs the kernel a whole socket buffer (several hundred bytes),
-    not 16. SO_RCVBUFFORCE (needs CAP_NET_ADMIN) sets it past net.core.rmem_max; without the
-    capability SO_RCVBUF is capped there. effective_receive_buffer_bytes is what the kernel
-    granted (None: no socket, or receive_buffer_bytes None leaves the kernel's default). The
-    kernel's drop count is read from the same socket; a virtual bus has neither.
+    Where the bus has a socket (SocketCAN), its receive buffer holds the frames that arrive while the daemon is busy; each frame costs
+    the kernel a whole socket buffer (several hundred bytes), not 16. SO_RCVBUFFORCE (needs
+    CAP_NET_ADMIN) sets it past net.core.rmem_max; without the capability SO_RCVBUF is capped
+    there. effective_receive_buffer_bytes is what the kernel granted (None: no socket, or
+    receive_buffer_bytes None leaves the kernel's default). The kernel's drop count is read from
+    the same socket; a virtual bus has neither.
     """
 
     def __init__(self, kind: str, channel: str, receive_buffer_bytes: int | None = None) -> None:
@@ -149,15 +154,23 @@ class CanSource(LiveSource):
             raise ValueError(f"coalesce_s must be >= 0 (0: wake for every frame), got {coalesce_s}")
         self.coalesce_s = coalesce_s
         self._decoder = CanFrameDecoder(layout, fs_hz, self.counters, self._queue)
+        self._frames_per_instant = layout.frames_per_instant
+        self._reader: FrameReader | None = None
         self._drops_seen = 0  # the current bus's kernel drop count already counted
         self._start()
 
     def _open(self) -> can.BusABC:
         bus = self.port.open()
+        try:
+            self._reader = self.port.frame_reader(bus, self.max_block_n * self._frames_per_instant)
+        except BaseException:
+            bus.shutdown()
+            raise
         self._drops_seen = self.port.dropped_frames(bus) or 0
         return bus
 
     def _close(self, device: can.BusABC) -> None:
+        self._reader = None
         device.shutdown()
 
     def _restart(self) -> None:
@@ -165,35 +178,33 @@ class CanSource(LiveSource):
 
     def _receive(self, device: can.BusABC, timeout_s: float, wanted_n: int) -> None:
         """Gather frames until wanted_n instants' worth are in or timeout_s is over, then decode them."""
-        wanted = wanted_n * self.layout.frames_per_instant
+        reader = self._reader
+        assert reader is not None
+        wanted = wanted_n * self._frames_per_instant
         end_s = self._clock() + timeout_s
-        messages: list[can.Message] = []
         try:
-            message = device.recv(timeout=timeout_s)  # an idle bus: block until a frame comes
-            while message is not None:
-                messages.append(message)
-                if len(messages) >= wanted:
+            got = reader.receive(wanted, timeout_s)  # an idle bus: block until a frame comes
+            while 0 < got < wanted:
+                more = self._more_frames(reader, wanted - got, end_s)
+                if more == 0:
                     break
-                message = self._next_frame(device, end_s)
+                got += more
         finally:
-            self._decoder.feed(messages)  # the frames received before a failure too
+            self._decoder.feed_frames(reader.take())  # the frames received before a failure too
         self._count_kernel_drops(device)
 
-    def _next_frame(self, bus: can.BusABC, end_s: float) -> can.Message | None:
-        """The next frame of a batch being gathered, None once none comes before end_s.
+    def _more_frames(self, reader: FrameReader, max_n: int, end_s: float) -> int:
+        """More frames for a batch being gathered (the queue was drained): 0 once none comes before end_s.
 
         Past the deadline it still takes what is already queued (timeout 0). With coalesce_s > 0
-        a drained queue is left to refill for coalesce_s instead of waking for every frame.
+        the drained queue is left to refill for coalesce_s instead of waking for every frame.
         """
         if self.coalesce_s == 0:
-            return bus.recv(timeout=max(0.0, end_s - self._clock()))
-        message = bus.recv(timeout=0.0)
-        if message is None:
-            pause_s = min(self.coalesce_s, end_s - self._clock())
-            if pause_s > 0:
-                self._sleep(pause_s)
-                message = bus.recv(timeout=0.0)
-        return message
+            return reader.receive(max_n, max(0.0, end_s - self._clock()))
+        pause_s = min(self.coalesce_s, end_s - self._clock())
+        if pause_s > 0:
+            self._sleep(pause_s)
+        return reader.receive(max_n, 0.0)
 
     def _count_kernel_drops(self, bus: can.BusABC) -> None:
         drops = self.port.dropped_frames(bus)
