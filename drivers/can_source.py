@@ -31,7 +31,7 @@ from collections.abc import Callable
 import can
 
 from bogiemon.drivers.can_decode import CanFrameDecoder
-from bogiemon.drivers.can_frames import BusFrameReader, FrameReader
+from bogiemon.drivers.can_frames import BusFrameReader, FrameReader, SocketFrameReader
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import BusRole, bus_kind, open_bus
 from bogiemon.drivers.live import LiveSource
@@ -70,12 +70,14 @@ class BusPort(ABC):
 class CanBusPort(BusPort):
     """A python-can bus of a kind of drivers/canbus.py ('socketcan', 'virtual') on one channel.
 
-    Where the bus has a socket (SocketCAN), its receive buffer holds the frames that arrive while the daemon is busy; each frame costs
+    Where the bus has a socket (SocketCAN), its frames are read off that socket in batches
+    (drivers/can_frames.py: SocketFrameReader, one recvmmsg(2) for all the frames queued), and
+    its receive buffer holds the frames that arrive while the daemon is busy; each frame costs
     the kernel a whole socket buffer (several hundred bytes), not 16. SO_RCVBUFFORCE (needs
     CAP_NET_ADMIN) sets it past net.core.rmem_max; without the capability SO_RCVBUF is capped
     there. effective_receive_buffer_bytes is what the kernel granted (None: no socket, or
     receive_buffer_bytes None leaves the kernel's default). The kernel's drop count is read from
-    the same socket; a virtual bus has neither.
+    the same socket. A virtual bus has none of these: python-can's recv reads it.
     """
 
     def __init__(self, kind: str, channel: str, receive_buffer_bytes: int | None = None) -> None:
@@ -91,6 +93,10 @@ class CanBusPort(BusPort):
         if self.receive_buffer_bytes is not None and isinstance(sock, socket.socket):
             self.effective_receive_buffer_bytes = set_receive_buffer(sock, self.receive_buffer_bytes)
         return bus
+
+    def frame_reader(self, bus: can.BusABC, capacity: int) -> FrameReader:
+        sock = getattr(bus, "socket", None)
+        return SocketFrameReader(sock, capacity) if isinstance(sock, socket.socket) else BusFrameReader(bus)
 
     def dropped_frames(self, bus: can.BusABC) -> int | None:
         sock = getattr(bus, "socket", None)
