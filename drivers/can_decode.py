@@ -17,6 +17,7 @@ anchors a segment; identifiers beyond 29 bits (11 for a standard frame) are unkn
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import can
 import numpy as np
@@ -220,18 +221,35 @@ class CanFrameDecoder:
             self.counters.add("lost_samples", lost)
 
 
+@dataclass(frozen=True)
 class AlignedSamples:
-    """Complete sampling instants assembled by NodeAligner.push."""
+    """Complete sampling instants assembled by NodeAligner.push, in counter order.
 
-    def __init__(self, rows: list[tuple[list[float], list[int], bool, float]], duplicates: int, out_of_order: int, lost: int) -> None:
+    accel_mps2 (m, 3), status (m, 3) per channel, new_segment (m,): the instant starts a segment
+    (instants were lost before it), times_s (m,): the receive time of each instant's first frame;
+    and the frames dropped (duplicates, out_of_order) and instants lost in this push.
+    """
+
+    accel_mps2: NDArray[np.float64]
+    status: NDArray[np.uint8]
+    new_segment: NDArray[np.bool_]
+    times_s: NDArray[np.float64]
+    duplicates: int = 0
+    out_of_order: int = 0
+    lost: int = 0
+
+    @classmethod
+    def from_rows(cls, rows: list[tuple[list[float], list[int], bool, float]], duplicates: int, out_of_order: int, lost: int) -> AlignedSamples:
         n = len(rows)
-        self.accel_mps2 = np.array([r[0] for r in rows], dtype=np.float64).reshape(n, 3)
-        self.status = np.array([r[1] for r in rows], dtype=np.uint8).reshape(n, 3)
-        self.new_segment = np.array([r[2] for r in rows], dtype=bool)
-        self.times_s = np.array([r[3] for r in rows], dtype=np.float64)
-        self.duplicates = duplicates
-        self.out_of_order = out_of_order
-        self.lost = lost
+        return cls(
+            np.array([r[0] for r in rows], dtype=np.float64).reshape(n, 3),
+            np.array([r[1] for r in rows], dtype=np.uint8).reshape(n, 3),
+            np.array([r[2] for r in rows], dtype=bool),
+            np.array([r[3] for r in rows], dtype=np.float64),
+            duplicates,
+            out_of_order,
+            lost,
+        )
 
 
 class NodeAligner:
@@ -241,6 +259,13 @@ class NodeAligner:
     instant is complete when all three answers with that counter are in. Instants are emitted
     in counter order. An instant still incomplete when any node is `window` counts past it is
     lost: the segment ends there and the next complete instant starts a new one.
+
+    The rules are those of `_push_frame_by_frame`, one frame at a time: the definition, and what
+    runs for a batch that is not regular. A regular batch (the steady state: no pause beyond
+    max_silence_s, no frame repeated or behind the instant being assembled, within a segment that
+    has delivered, lost instants allowed) is joined in numpy by `_push_regular`, with the same
+    result to the bit (tests/drivers/test_node_aligner.py checks it against the frame-by-frame
+    rules with hypothesis).
     """
 
     def __init__(self, modulus: int, max_silence_s: float, window: int = 16) -> None:
@@ -274,6 +299,119 @@ class NodeAligner:
         status: NDArray[np.uint8],
         times_s: NDArray[np.float64],
     ) -> AlignedSamples:
+        """Join a batch of node frames in arrival order: channel (0..2), counter, value, status bits, receive time (n,)."""
+        joined = self._push_regular(channel, counter, value, status, times_s)
+        if joined is not None:
+            return joined
+        return self._push_frame_by_frame(channel, counter, value, status, times_s)
+
+    def _push_regular(
+        self,
+        channel: NDArray[np.int64],
+        counter: NDArray[np.int64],
+        value: NDArray[np.float64],
+        status: NDArray[np.uint8],
+        times_s: NDArray[np.float64],
+    ) -> AlignedSamples | None:
+        """A regular batch joined in numpy; None (and nothing changed) if the batch is not regular.
+
+        In instants counted from the next one to emit (u: each frame's, unwrapped along the
+        batch), the rules come down to this when every frame is accepted: instant v is passed
+        (emitted if complete, else lost) at the frame where it completes or where a frame
+        `window` instants ahead arrives, whichever comes first, and never before instant v - 1.
+        The batch is regular when each frame then lies ahead of the instant being assembled at
+        its arrival by less than half the counter period, and is no repeat.
+        """
+        n = channel.shape[0]
+        if n == 0:
+            return AlignedSamples.from_rows([], 0, 0, 0)
+        if self._next is None or not self._segment_emitted or self._last_time_s is None:
+            return None  # a segment's start has rules of its own
+        modulus, window, half = self.modulus, self.window, self.modulus // 2
+        if times_s[0] - self._last_time_s > self.max_silence_s or bool((times_s[1:] - times_s[:-1] > self.max_silence_s).any()):
+            return None
+        first = self._next
+        u = np.empty(n, np.int64)
+        u[0] = (int(counter[0]) - first) % modulus
+        u[1:] = u[0] + np.cumsum((counter[1:] - counter[:-1] + half) % modulus - half)
+        have = np.array(self._have, dtype=np.int64)
+        slots = np.flatnonzero(have)
+        pending_at = (slots - first) % modulus  # instants waiting for frames, counted from next
+        if pending_at.size and int(pending_at.max()) >= half:
+            return None
+        size = int(max(u.max(), pending_at.max(initial=-1))) + 1
+        if int(u.min()) < 0 or size > 2 * n + modulus:
+            return None  # frames from before the instant being assembled, or counters far apart
+        bit = np.left_shift(1, channel)
+        pending = np.zeros(size, np.int64)
+        pending[pending_at] = have[slots]
+        frame = np.arange(n)
+        answers = np.zeros((size, 3), np.int64)  # frames per instant and node
+        np.add.at(answers, (u, channel), 1)
+        if bool((pending[u] & bit).any()) or int(answers.max()) > 1:
+            return None  # a frame repeated
+        bits = pending | (answers[:, 0] | answers[:, 1] << 1 | answers[:, 2] << 2)
+        last = np.full(size, -1)
+        np.maximum.at(last, u, frame)
+        done = np.where(bits == 0b111, last, n)  # the frame completing each instant (-1: before the batch, n: none)
+        floor = np.maximum.accumulate(u - window + 1)  # next is at least this after each frame
+        pushed_past = np.searchsorted(floor, np.arange(size), side="right")  # first frame with floor > v
+        passed_at = np.maximum.accumulate(np.minimum(done, pushed_past))
+        next_before = np.searchsorted(passed_at, frame, side="left")  # instants passed before each frame
+        ahead = u - next_before
+        if bool((ahead < 0).any()) or bool((ahead >= half).any()):
+            return None  # behind the instant being assembled: out of order, or a restart
+        # Regular: every frame is accepted. Commit the state and emit.
+        passed = passed_at < n
+        n_passed = int(passed.sum())
+        emitted = passed & (done <= passed_at)
+        lost_mask = passed & ~emitted
+        rows = np.flatnonzero(emitted)
+        values = np.zeros((size, 3))
+        bits_status = np.zeros((size, 3), np.uint8)
+        first_time_s = np.zeros(size)
+        values[pending_at] = self._values[slots]
+        bits_status[pending_at] = self._status[slots]
+        first_time_s[pending_at] = [self._first_time_s[s] for s in slots.tolist()]
+        values[u, channel] = value
+        bits_status[u, channel] = status
+        first_frame = np.full(size, n)
+        np.minimum.at(first_frame, u, frame)
+        first_time_s = np.where(pending != 0, first_time_s, times_s[np.minimum(first_frame, n - 1)])
+        lost_before = np.cumsum(lost_mask)[rows]  # instants lost up to each emitted one
+        new_segment = lost_before > np.concatenate([[0], lost_before[:-1]])
+        n_lost = int(lost_mask.sum())
+        if rows.size:
+            new_segment[0] |= self._new_segment
+            self._new_segment = n_lost > int(lost_before[-1])
+        else:
+            self._new_segment = self._new_segment or n_lost > 0
+        waiting = np.arange(n_passed, size)
+        waiting = waiting[bits[waiting] != 0]
+        waiting_slots = (first + waiting) % modulus
+        have[(first + np.arange(min(n_passed, modulus))) % modulus] = 0
+        have[waiting_slots] = bits[waiting]
+        self._values[waiting_slots] = values[waiting]
+        self._status[waiting_slots] = bits_status[waiting]
+        for slot, time_s in zip(waiting_slots.tolist(), first_time_s[waiting].tolist(), strict=True):
+            self._first_time_s[slot] = time_s
+        self._have = have.tolist()
+        self._next = (first + n_passed) % modulus
+        self._last_time_s = float(times_s[-1])
+        for c, answered in enumerate(answers.any(axis=0).tolist()):
+            if answered:
+                self._behind[c] = 0
+        return AlignedSamples(values[rows], bits_status[rows], new_segment, first_time_s[rows], lost=n_lost)
+
+    def _push_frame_by_frame(
+        self,
+        channel: NDArray[np.int64],
+        counter: NDArray[np.int64],
+        value: NDArray[np.float64],
+        status: NDArray[np.uint8],
+        times_s: NDArray[np.float64],
+    ) -> AlignedSamples:
+        """The rules, one frame at a time: the definition of push, and what runs for an irregular batch."""
         rows: list[tuple[list[float], list[int], bool, float]] = []
         duplicates = out_of_order = lost = 0
         half = self.modulus // 2
@@ -321,7 +459,7 @@ class NodeAligner:
                     ahead -= 1
             while self._have[self._next] == 0b111:
                 self._emit(rows)
-        return AlignedSamples(rows, duplicates, out_of_order, lost)
+        return AlignedSamples.from_rows(rows, duplicates, out_of_order, lost)
 
     def _emit(self, rows: list[tuple[list[float], list[int], bool, float]]) -> None:
         c = self._next
