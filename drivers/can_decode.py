@@ -36,7 +36,7 @@ from bogiemon.drivers.can_frames import (  # noqa: F401 - the error classes, als
     RX_OVERFLOW,
     FrameBatch,
 )
-from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.candb import CanLayout, MessageCodec
 from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker, TimestampGuard
 
 CAN_COUNTERS = (
@@ -93,6 +93,10 @@ class CanFrameDecoder:
         self._sorted_keys = np.array(sorted(by_key), dtype=np.int64)
         self._class_of_key = np.array([by_key[k] for k in self._sorted_keys.tolist()] + [self._unknown], dtype=np.int64)
         self._length_of_class = np.array([m.length for m in self._messages] + [-1, -1], dtype=np.int64)
+        # The nodes' frames decode in one pass where the DBC lays their signals out alike (the
+        # shipped one does), else node by node.
+        nodes = layout.nodes
+        self._node_codecs = nodes[:1] if nodes and all((n.length, n.signals) == (nodes[0].length, nodes[0].signals) for n in nodes) else nodes
         self._guard = TimestampGuard(counters)
         self._tracker = SequenceTracker(modulus, silence_s)
         self._aligner = NodeAligner(modulus, silence_s) if layout.name == "per-node" else None
@@ -196,21 +200,26 @@ class CanFrameDecoder:
         if index.size == 0:
             return
         channel = frame_class[index]
-        counter = np.empty(index.size, np.int64)
-        value = np.empty(index.size, np.float64)
-        status = np.empty(index.size, np.uint8)
-        for c, codec in enumerate(self.layout.nodes):
-            mine = channel == c
-            if not mine.any():
-                continue
-            le, be = codec.words(frames.data[index[mine], : codec.length])
-            sig = codec.signals
-            counter[mine] = sig["Counter"].raw(le, be)
-            value[mine] = sig["Accel"].decode(le, be)
-            status[mine] = status_bits(sig["OverRange"].raw(le, be), sig["SensorFault"].raw(le, be))
+        if len(self._node_codecs) == 1:
+            counter, value, status = self._decode_node(self._node_codecs[0], frames.data[index])
+        else:
+            counter = np.empty(index.size, np.int64)
+            value = np.empty(index.size, np.float64)
+            status = np.empty(index.size, np.uint8)
+            for c, codec in enumerate(self._node_codecs):
+                mine = channel == c
+                if mine.any():
+                    counter[mine], value[mine], status[mine] = self._decode_node(codec, frames.data[index[mine]])
         out = self._aligner.push(channel, counter, value, status, frames.time_s[index])
         self._count_verdict(out.duplicates, out.out_of_order, out.lost)
         self.queue.append(out.accel_mps2, out.status, out.new_segment, out.times_s)
+
+    @staticmethod
+    def _decode_node(codec: MessageCodec, data: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.uint8]]:
+        """Counter, acceleration and status bits of node frames' data (n, 8)."""
+        le, be = codec.words(data[:, : codec.length])
+        sig = codec.signals
+        return sig["Counter"].raw(le, be), sig["Accel"].decode(le, be), status_bits(sig["OverRange"].raw(le, be), sig["SensorFault"].raw(le, be))
 
     def _count_verdict(self, duplicates: int, out_of_order: int, lost: int) -> None:
         if duplicates:
