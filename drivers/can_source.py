@@ -4,20 +4,29 @@ The bus comes from a BusPort, the one extension point. CanBusPort opens a python
 drivers/canbus.py: kind 'socketcan' on a gateway (can0, vcan0), 'virtual' for tests and
 in-process benches. canbus.py instantiates the interface class directly with every setting
 spelled out, never `can.Bus(...)`, so no ~/.canrc, can.ini or CAN_* environment variable is read.
-Only the bus construction differs between the kinds; everything past it is the same code.
+
+The port also says how the frames come off the bus (drivers/can_frames.py), and that is the one
+other place where the kinds differ: a bus with a socket (SocketCAN) is read in batches, every
+frame queued on the socket in one recvmmsg(2) parsed with numpy, because python-can's SocketCAN
+receive costs a select, a recvmsg and a Message per frame (it has no batch receive; Python's
+socket module has no recvmmsg) and that was most of the reader's CPU; the virtual bus, an
+in-process queue of Messages, is read through python-can's recv. Past the reader, frames are
+the columns of a FrameBatch and everything is the same code. The socket reader is tested on this
+kernel's datagram sockets carrying the same struct can_frame bytes, against python-can's own
+parsing (tests/drivers/test_can_frames.py), as AF_CAN cannot be created here.
 
 read(timeout_s) gathers frames for up to timeout_s, decodes them in one batch and returns the
 samples received since the last call: a Block as soon as max_block_s of samples are in or a
 segment ends, else at timeout_s whatever arrived (None if nothing did). While a block fills, the
 reader does not wake for every frame: once the bus's queue is drained it sleeps coalesce_s (by
-default the time 25 frames take, at most 50 ms) and then takes everything that arrived meanwhile,
-the frames keeping their receive times. At 500 Hz that is 20 wake-ups a second instead of 500
-and a third of the reader's CPU (`make bench-drivers`, README "Performance"); a
-block's last sample waits at most coalesce_s longer.
+default the time 100 frames take, at most 50 ms: 50 ms for either layout at 500 Hz) and then
+takes everything that arrived meanwhile, the frames keeping their receive times. At 500 Hz that
+is 20 wake-ups a second instead of 500 or 2000 (`make bench-drivers`); a block's last sample
+waits at most coalesce_s longer.
 
-When the bus fails (an interface unplugged or deleted, a closed channel) the source counts it,
-closes the bus, and reopens it with exponential backoff on later calls; the next samples start a
-new segment.
+The read loop, the counting and the reconnection are drivers/live.py's: when the bus fails (an
+interface unplugged or deleted, a closed channel) the source counts it, closes the bus, and
+reopens it with exponential backoff on later calls; the next samples start a new segment.
 """
 
 from __future__ import annotations
@@ -42,10 +51,12 @@ SO_RCVBUFFORCE = 33
 SO_MEMINFO = 55
 SK_MEMINFO_DROPS = 8  # index in the u32 array SO_MEMINFO returns (Linux >= 4.6)
 # How long the reader lets frames accumulate once the bus queue is drained, by default: the
-# time COALESCE_FRAMES take to arrive, at most MAX_COALESCE_S (50 ms for the hub layout at
-# 500 Hz, 12.5 ms per-node). The socket's receive buffer must hold them meanwhile: a small part
-# of the few hundred frames the default net.core.rmem_max holds.
-COALESCE_FRAMES = 25
+# time COALESCE_FRAMES take to arrive, at most MAX_COALESCE_S (50 ms for either layout at
+# 500 Hz). Each wake-up costs a sleep and a system call whatever it brings: per node, 12.5 ms
+# (25 frames) cost a third more CPU than 50 ms (bench/bench_drivers.py). The socket's receive
+# buffer must hold them meanwhile: the few hundred frames it holds even where net.core.rmem_max
+# is left at its default (docs/drivers.md) are several times 100.
+COALESCE_FRAMES = 100
 MAX_COALESCE_S = 0.05
 
 

@@ -553,8 +553,10 @@ def test_a_coalescing_read_still_returns_what_arrived_when_its_timeout_ends() ->
     assert bus.now_s <= 0.5 + 1e-9
 
 
-def test_the_default_coalescing_interval_is_the_time_of_25_frames_at_most_50_ms() -> None:
+def test_the_default_coalescing_interval_is_the_time_of_100_frames_at_most_50_ms() -> None:
     hub = CanSource(ScheduledPort(ScheduledBus([], 0.0)), HUB, FS_HZ)
     per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, FS_HZ)
-    assert hub.coalesce_s == pytest.approx(0.05)  # 25 frames at 500 frames/s
-    assert per_node.coalesce_s == pytest.approx(25 / (FS_HZ * PER_NODE.frames_per_instant))
+    fast_per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, 2 * FS_HZ)
+    assert hub.coalesce_s == pytest.approx(0.05)  # at most 50 ms (100 frames take 0.2 s)
+    assert per_node.coalesce_s == pytest.approx(0.05)  # 100 frames at 2000 frames/s
+    assert fast_per_node.coalesce_s == pytest.approx(100 / (2 * FS_HZ * PER_NODE.frames_per_instant))
