@@ -24,18 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
-from bogiemon.drivers.can_frames import (  # noqa: F401 - the error classes, also named here for callers
-    BUS_OFF,
-    CAN_ERR_BUSOFF,
-    CAN_ERR_CRTL,
-    CAN_ERR_CRTL_RX_OVERFLOW,
-    CAN_EXT_ID_MAX,
-    CAN_STD_ID_MAX,
-    ERROR,
-    REMOTE,
-    RX_OVERFLOW,
-    FrameBatch,
-)
+from bogiemon.drivers.can_frames import BUS_OFF, ERROR, REMOTE, RX_OVERFLOW, FrameBatch
 from bogiemon.drivers.candb import CanLayout, MessageCodec
 from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker, TimestampGuard
 

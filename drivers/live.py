@@ -13,7 +13,6 @@ when the stream restarts).
 
 from __future__ import annotations
 
-import time
 from abc import abstractmethod
 from collections.abc import Callable
 from typing import Any

@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
-from bogiemon.drivers.can_decode import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CanFrameDecoder
-from bogiemon.drivers.can_frames import BusFrameReader, SocketFrameReader
+from bogiemon.drivers.can_decode import CanFrameDecoder
+from bogiemon.drivers.can_frames import CAN_ERR_BUSOFF, CAN_ERR_CRTL, BusFrameReader, SocketFrameReader
 from bogiemon.drivers.can_source import BusPort, CanBusPort, CanSource, set_receive_buffer, socket_drops
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import UnknownBusKind
