@@ -76,11 +76,34 @@ class DatagramCanBus(can.BusABC):
         super().shutdown()
 
 
+class DatagramSender(can.BusABC):
+    """A sending end for a DatagramCanBus: each message goes to its address as one struct can_frame datagram."""
+
+    def __init__(self, address: tuple[str, int]) -> None:
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.address = address
+        self.channel_info = f"datagrams to {address[0]}:{address[1]}"
+        super().__init__(channel="")
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.socket.sendto(build_can_frame(msg), self.address)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:  # pragma: no cover - a sender
+        return None, False
+
+    def shutdown(self) -> None:
+        self.socket.close()
+        super().shutdown()
+
+
 def send_frames(address: tuple[str, int], messages: list[can.Message]) -> None:
     """The messages as struct can_frame datagrams to a DatagramCanBus's address, in order."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+    sender = DatagramSender(address)
+    try:
         for message in messages:
-            sender.sendto(build_can_frame(message), address)
+            sender.send(message)
+    finally:
+        sender.shutdown()
 
 
 def silences_heard(listener: can.BusABC, layout: CanLayout) -> int:
