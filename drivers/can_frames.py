@@ -64,6 +64,9 @@ TIMESPEC = np.dtype([("sec", np.dtype(ctypes.c_long)), ("nsec", np.dtype(ctypes.
 CONTROL_SPACE = socket.CMSG_SPACE(TIMESPEC.itemsize)  # control bytes per frame
 CMSG_DATA_OFFSET = socket.CMSG_LEN(0)
 CMSG_HEADER = np.dtype([("len", np.dtype(ctypes.c_size_t)), ("level", np.intc), ("type", np.intc)])
+CMSG_NEEDED = socket.CMSG_LEN(TIMESPEC.itemsize)
+# The header of the control message the kernel writes for a receive time, as bytes.
+TIMESTAMP_HEADER = np.array([(CMSG_NEEDED, socket.SOL_SOCKET, SO_TIMESTAMPNS)], CMSG_HEADER).view(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -190,14 +193,19 @@ def frames_from_datagrams(
     """
     k = frames.shape[0]
     frame = np.ascontiguousarray(frames).view(CAN_FRAME).reshape(k)
+    whole = (np.asarray(received_bytes) == CAN_MTU) & ((np.asarray(msg_flags) & socket.MSG_TRUNC) == 0)
+    times_s = _receive_times(control, control_bytes)
     can_id = frame["can_id"].astype(np.int64)
+    length = np.minimum(frame["len"], 8).astype(np.int64)  # python-can keeps at most a classical frame's 8 bytes
+    if bool(whole.all()) and not bool((can_id & ~CAN_STD_ID_MAX).any()):
+        # The steady state: whole data frames with 11-bit identifiers, no flag in can_id.
+        data = frame["data"] if bool((length == 8).all()) else frame["data"] * (np.arange(8) < length[:, None])
+        return FrameBatch(times_s, can_id, length, data.astype(np.uint8), np.zeros(k, np.uint8))
     extended = (can_id & CAN_EFF_FLAG) != 0
     remote = (can_id & CAN_RTR_FLAG) != 0
     error = (can_id & CAN_ERR_FLAG) != 0
     arbitration_id = can_id & np.where(extended, CAN_EXT_ID_MAX, CAN_STD_ID_MAX)
-    whole = (np.asarray(received_bytes) == CAN_MTU) & ((np.asarray(msg_flags) & socket.MSG_TRUNC) == 0)
-    # python-can keeps no data of a remote frame and at most the 8 bytes a classical frame has.
-    length = np.where(remote | ~whole, 0, np.minimum(frame["len"], 8)).astype(np.int64)
+    length[remote | ~whole] = 0  # python-can keeps no data of a remote frame
     data = frame["data"] * (np.arange(8) < length[:, None])
     error &= whole
     flags = (remote & whole) * np.uint8(REMOTE) | error * np.uint8(ERROR)
@@ -205,23 +213,19 @@ def frames_from_datagrams(
     overflow = error & ((arbitration_id & CAN_ERR_CRTL) != 0) & (length > 1) & ((data[:, 1] & CAN_ERR_CRTL_RX_OVERFLOW) != 0)
     flags |= overflow * np.uint8(RX_OVERFLOW)
     key = np.where(whole, arbitration_id | np.where(extended, CAN_EFF_KEY, 0), -1)
-    return FrameBatch(_receive_times(control, control_bytes), key, length, data.astype(np.uint8), flags.astype(np.uint8))
+    return FrameBatch(times_s, key, length, data.astype(np.uint8), flags.astype(np.uint8))
 
 
 def _receive_times(control: NDArray[np.uint8], control_bytes: NDArray[np.integer]) -> NDArray[np.float64]:
     k = control.shape[0]
     control = np.ascontiguousarray(control)
-    header = control[:, : CMSG_HEADER.itemsize].copy().view(CMSG_HEADER).reshape(k)
     stamp = control[:, CMSG_DATA_OFFSET : CMSG_DATA_OFFSET + TIMESPEC.itemsize].copy().view(TIMESPEC).reshape(k)
-    needed = socket.CMSG_LEN(TIMESPEC.itemsize)
-    ok = (
-        (np.asarray(control_bytes) >= needed)
-        & (header["len"] >= needed)
-        & (header["level"] == socket.SOL_SOCKET)
-        & (header["type"] == SO_TIMESTAMPNS)
-        & (stamp["nsec"] < 1_000_000_000)  # python-can refuses the frame; here the check counts it
-    )
     times_s = stamp["sec"].astype(np.float64) + stamp["nsec"].astype(np.float64) * 1e-9  # as python-can adds them
+    ok = (np.asarray(control_bytes) >= CMSG_NEEDED) & (stamp["nsec"] < 1_000_000_000)  # python-can refuses the latter
+    if bool((control[:, : CMSG_HEADER.itemsize] == TIMESTAMP_HEADER).all()):  # what the kernel writes
+        return np.where(ok, times_s, np.nan) if not bool(ok.all()) else times_s
+    header = control[:, : CMSG_HEADER.itemsize].copy().view(CMSG_HEADER).reshape(k)
+    ok &= (header["len"] >= CMSG_NEEDED) & (header["level"] == socket.SOL_SOCKET) & (header["type"] == SO_TIMESTAMPNS)
     return np.where(ok, times_s, np.nan)
 
 

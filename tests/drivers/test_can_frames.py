@@ -36,6 +36,9 @@ from bogiemon.drivers.candb import CAN_EFF_KEY
 from tests.drivers.frames import HUB, DatagramCanBus, layout_frames, send_frames
 
 
+STAMP_BYTES = socket.CMSG_LEN(struct.calcsize("@ll"))  # an SO_TIMESTAMPNS control message's length
+
+
 def assert_same_batch(got: FrameBatch, expected: FrameBatch, times: bool = True) -> None:
     np.testing.assert_array_equal(got.key, expected.key)
     np.testing.assert_array_equal(got.length, expected.length)
@@ -113,27 +116,28 @@ class OneDatagram:
         return self.reply
 
 
-def control_message(sec: int, nsec: int) -> bytes:
-    """The control bytes the kernel writes for an SO_TIMESTAMPNS receive time."""
+def control_message(sec: int, nsec: int, kind: int = SO_TIMESTAMPNS) -> bytes:
+    """The control bytes the kernel writes for an SO_TIMESTAMPNS receive time (or a message of another kind)."""
     data = struct.pack("@ll", sec, nsec)
-    header = struct.pack("@NiI", socket.CMSG_LEN(len(data)), socket.SOL_SOCKET, SO_TIMESTAMPNS)
+    header = struct.pack("@NiI", socket.CMSG_LEN(len(data)), socket.SOL_SOCKET, kind)
     return (header.ljust(CMSG_DATA_OFFSET, b"\0") + data).ljust(CONTROL_SPACE, b"\0")
 
 
 @st.composite
-def datagrams(draw: st.DrawFn) -> tuple[bytes, int, int]:
-    can_id = draw(st.integers(0, 2**32 - 1))
+def datagrams(draw: st.DrawFn, plain: bool) -> tuple[bytes, int, int]:
+    """A struct can_frame and its receive time; plain: an 11-bit identifier and no flag, as a bus mostly carries."""
+    can_id = draw(st.integers(0, 0x7FF) if plain else st.integers(0, 2**32 - 1))
     header = struct.pack("=IBBBB", can_id, draw(st.integers(0, 15)), draw(st.integers(0, 255)), draw(st.integers(0, 255)), draw(st.integers(0, 15)))
     return header + draw(st.binary(min_size=8, max_size=8)), draw(st.integers(0, 2**31 - 1)), draw(st.integers(0, 999_999_999))
 
 
 @settings(max_examples=300, deadline=None)
-@given(batch=st.lists(datagrams(), min_size=1, max_size=16))
+@given(batch=st.booleans().flatmap(lambda plain: st.lists(datagrams(plain), min_size=1, max_size=16)))
 def test_datagrams_parse_exactly_as_python_cans_socketcan_receive_path(batch: list[tuple[bytes, int, int]]) -> None:
     k = len(batch)
     frames = np.frombuffer(b"".join(f for f, _, _ in batch), np.uint8).reshape(k, CAN_MTU)
     control = np.frombuffer(b"".join(control_message(s, ns) for _, s, ns in batch), np.uint8).reshape(k, CONTROL_SPACE)
-    got = frames_from_datagrams(frames, np.full(k, CAN_MTU), np.zeros(k, np.intc), control, np.full(k, socket.CMSG_LEN(16)))
+    got = frames_from_datagrams(frames, np.full(k, CAN_MTU), np.zeros(k, np.intc), control, np.full(k, STAMP_BYTES))
     reference = []
     for frame, sec, nsec in batch:
         sock = OneDatagram(frame, [(socket.SOL_SOCKET, SO_TIMESTAMPNS, struct.pack("@ll", sec, nsec))])
@@ -143,17 +147,26 @@ def test_datagrams_parse_exactly_as_python_cans_socketcan_receive_path(batch: li
 
 def test_a_datagram_that_is_not_one_frame_is_an_unknown_identifier_and_a_missing_stamp_nan() -> None:
     frame = np.frombuffer(build_can_frame(can.Message(arbitration_id=0x100, is_extended_id=False, data=bytes(8))), np.uint8)
-    frames = np.stack([frame] * 4)
-    control = np.frombuffer(control_message(1000, 5) * 4, np.uint8).reshape(4, CONTROL_SPACE)
+    frames = np.stack([frame] * 5)
+    control = np.frombuffer(control_message(1000, 5) * 4 + control_message(1000, 5, kind=SO_TIMESTAMPNS + 1), np.uint8)
     got = frames_from_datagrams(
         frames,
-        received_bytes=np.array([CAN_MTU, 10, CAN_MTU, CAN_MTU]),  # a short one
-        msg_flags=np.array([0, 0, socket.MSG_TRUNC, 0]),  # a longer one, cut
-        control=control,
-        control_bytes=np.array([socket.CMSG_LEN(16), socket.CMSG_LEN(16), socket.CMSG_LEN(16), 0]),  # no stamp
+        received_bytes=np.array([CAN_MTU, 10, CAN_MTU, CAN_MTU, CAN_MTU]),  # a short one
+        msg_flags=np.array([0, 0, socket.MSG_TRUNC, 0, 0]),  # a longer one, cut
+        control=control.reshape(5, CONTROL_SPACE),
+        control_bytes=np.array([STAMP_BYTES] * 3 + [0, STAMP_BYTES]),  # no stamp; another message
     )
-    assert got.key.tolist() == [0x100, -1, -1, 0x100]
-    assert got.time_s[:3].tolist() == [1000 + 5e-9] * 3 and np.isnan(got.time_s[3])
+    assert got.key.tolist() == [0x100, -1, -1, 0x100, 0x100]
+    assert got.time_s[:3].tolist() == [1000 + 5e-9] * 3 and np.isnan(got.time_s[3:]).all()
+
+
+def test_a_batch_of_whole_data_frames_keeps_its_stamps_unless_one_is_missing() -> None:
+    frame = np.frombuffer(build_can_frame(can.Message(arbitration_id=0x101, is_extended_id=False, data=b"\x01\x02")), np.uint8)
+    control = np.frombuffer(control_message(1000, 5) * 3, np.uint8).reshape(3, CONTROL_SPACE)
+    received = np.full(3, CAN_MTU)
+    got = frames_from_datagrams(np.stack([frame] * 3), received, np.zeros(3, np.intc), control, np.array([STAMP_BYTES, 0, STAMP_BYTES]))
+    assert got.key.tolist() == [0x101] * 3 and got.length.tolist() == [2] * 3 and got.data[:, :3].tolist() == [[1, 2, 0]] * 3
+    assert got.time_s[[0, 2]].tolist() == [1000 + 5e-9] * 2 and np.isnan(got.time_s[1])
 
 
 # ---- the socket reader on a real datagram socket -----------------------------------------------
