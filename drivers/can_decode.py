@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import can
 import numpy as np
@@ -219,6 +220,16 @@ class CanFrameDecoder:
             self.counters.add("lost_samples", lost)
 
 
+class NodeFrames(NamedTuple):
+    """A batch of node frames in arrival order, (n,) each: channel 0..2, counter, value, status bits, receive time."""
+
+    channel: NDArray[np.int64]
+    counter: NDArray[np.int64]
+    value: NDArray[np.float64]
+    status: NDArray[np.uint8]
+    times_s: NDArray[np.float64]
+
+
 @dataclass(frozen=True)
 class AlignedSamples:
     """Complete sampling instants assembled by NodeAligner.push, in counter order.
@@ -298,19 +309,13 @@ class NodeAligner:
         times_s: NDArray[np.float64],
     ) -> AlignedSamples:
         """Join a batch of node frames in arrival order: channel (0..2), counter, value, status bits, receive time (n,)."""
-        joined = self._push_regular(channel, counter, value, status, times_s)
+        frames = NodeFrames(channel, counter, value, status, times_s)
+        joined = self._push_regular(frames)
         if joined is not None:
             return joined
-        return self._push_frame_by_frame(channel, counter, value, status, times_s)
+        return self._push_frame_by_frame(frames)
 
-    def _push_regular(
-        self,
-        channel: NDArray[np.int64],
-        counter: NDArray[np.int64],
-        value: NDArray[np.float64],
-        status: NDArray[np.uint8],
-        times_s: NDArray[np.float64],
-    ) -> AlignedSamples | None:
+    def _push_regular(self, frames: NodeFrames) -> AlignedSamples | None:
         """A regular batch joined in numpy; None (and nothing changed) if the batch is not regular.
 
         In instants counted from the next one to emit (u: each frame's, unwrapped along the
@@ -320,6 +325,7 @@ class NodeAligner:
         The batch is regular when each frame then lies ahead of the instant being assembled at
         its arrival by less than half the counter period, and is no repeat.
         """
+        channel, counter, value, status, times_s = frames
         n = channel.shape[0]
         if n == 0:
             return AlignedSamples.from_rows([], 0, 0, 0)
@@ -401,15 +407,9 @@ class NodeAligner:
                 self._behind[c] = 0
         return AlignedSamples(values[rows], bits_status[rows], new_segment, first_time_s[rows], lost=n_lost)
 
-    def _push_frame_by_frame(
-        self,
-        channel: NDArray[np.int64],
-        counter: NDArray[np.int64],
-        value: NDArray[np.float64],
-        status: NDArray[np.uint8],
-        times_s: NDArray[np.float64],
-    ) -> AlignedSamples:
+    def _push_frame_by_frame(self, frames: NodeFrames) -> AlignedSamples:
         """The rules, one frame at a time: the definition of push, and what runs for an irregular batch."""
+        channel, counter, value, status, times_s = frames
         rows: list[tuple[list[float], list[int], bool, float]] = []
         duplicates = out_of_order = lost = 0
         half = self.modulus // 2

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bogiemon.drivers.can_decode import AlignedSamples, NodeAligner, max_silence_s
+from bogiemon.drivers.can_decode import AlignedSamples, NodeAligner, NodeFrames, max_silence_s
 from tests.drivers.frames import FS_HZ
 
 Frame = tuple[int, int, float, int, float]  # channel, counter, value, status bits, receive time
@@ -19,7 +19,7 @@ class FrameByFrame(NodeAligner):
     """The plain reference: every batch through the frame-by-frame rules."""
 
     def push(self, channel, counter, value, status, times_s) -> AlignedSamples:
-        return self._push_frame_by_frame(channel, counter, value, status, times_s)
+        return self._push_frame_by_frame(NodeFrames(channel, counter, value, status, times_s))
 
 
 class Counting(NodeAligner):
@@ -27,8 +27,8 @@ class Counting(NodeAligner):
 
     regular = 0
 
-    def _push_regular(self, *batch) -> AlignedSamples | None:
-        joined = super()._push_regular(*batch)
+    def _push_regular(self, frames: NodeFrames) -> AlignedSamples | None:
+        joined = super()._push_regular(frames)
         self.regular += joined is not None
         return joined
 
