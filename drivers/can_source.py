@@ -139,7 +139,7 @@ def socket_drops(sock: socket.socket) -> int | None:
     return int(struct.unpack_from("=I", raw, 4 * SK_MEMINFO_DROPS)[0])
 
 
-class CanSource(LiveSource):
+class CanSource(LiveSource[can.BusABC]):
     """Blocks from a CAN bus carrying one of the DBC's layouts (docs/drivers.md).
 
     The read loop, the counting and the reconnection are LiveSource's; this class opens and

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from collections.abc import Callable
-from typing import Any
+from typing import Generic, TypeVar
 
 from bogiemon.drivers.base import Block, HealthCounters, Source
 from bogiemon.drivers.reconnect import Backoff
@@ -29,8 +29,10 @@ LIVE_COUNTERS = (
 # a wait of 0 would spin.
 MIN_WAIT_S = 1e-3
 
+DeviceT = TypeVar("DeviceT")  # what a source opens: a python-can bus, a pyserial port
 
-class LiveSource(Source):
+
+class LiveSource(Source, Generic[DeviceT]):
     """A source on a device that can fail: the loop, the counters, the reconnection; hooks below.
 
     `device_errors` are what the device's receive and close raise for what the hardware does
@@ -59,18 +61,18 @@ class LiveSource(Source):
         self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
         self._clock = clock
         self._sleep = sleep
-        self._device: Any = None
+        self._device: DeviceT | None = None
         self._opened_before = False
         self._frames_at_open = 0
 
     # ---- the hooks ------------------------------------------------------------------------
 
     @abstractmethod
-    def _open(self) -> Any:
+    def _open(self) -> DeviceT:
         """A newly opened device; raises one of `open_errors` if it is not there."""
 
     @abstractmethod
-    def _receive(self, device: Any, timeout_s: float, wanted_n: int) -> None:
+    def _receive(self, device: DeviceT, timeout_s: float, wanted_n: int) -> None:
         """Read what the device delivers for up to timeout_s, or until wanted_n more samples are in.
 
         Hands the samples to the queue (samples read before a failure too), counts frames in
@@ -78,7 +80,7 @@ class LiveSource(Source):
         """
 
     @abstractmethod
-    def _close(self, device: Any) -> None:
+    def _close(self, device: DeviceT) -> None:
         """Release the device; may raise one of `device_errors` if it is already gone."""
 
     def _restart(self) -> None:  # noqa: B027 - a source with no decoding state has nothing to reset
@@ -99,8 +101,10 @@ class LiveSource(Source):
             if self._device is None and not self._try_open():
                 self._sleep(min(remaining_s, max(self._backoff.due_in_s(), MIN_WAIT_S)))
                 continue
+            device = self._device
+            assert device is not None  # open, or opened just above
             try:
-                self._receive(self._device, remaining_s, max(1, self.max_block_n - self._queue.n_pending))
+                self._receive(device, remaining_s, max(1, self.max_block_n - self._queue.n_pending))
             except self.device_errors as exc:
                 self._lose(exc)
                 continue

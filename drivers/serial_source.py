@@ -57,7 +57,7 @@ def open_serial_port(port: str, baudrate: int) -> serial.Serial:
     )
 
 
-class SerialSource(LiveSource):
+class SerialSource(LiveSource[Any]):  # a pyserial port, or a test's double of one
     """Blocks from the serial ADC board (docs/drivers.md, serial protocol).
 
     The read loop, the counting and the reconnection are LiveSource's; this class opens and

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import errno
 from collections import deque
-from typing import Any
 
 import can
 import numpy as np
@@ -27,7 +26,7 @@ class FakeDevice:
         self.closed = False
 
 
-class FakeSource(LiveSource):
+class FakeSource(LiveSource[FakeDevice]):
     """A live source over FakeDevice: the hooks only, as CanSource and SerialSource write them."""
 
     description = "fake device 'dev0'"
@@ -50,7 +49,7 @@ class FakeSource(LiveSource):
         self.devices.append(FakeDevice(self.script))
         return self.devices[-1]
 
-    def _receive(self, device: Any, timeout_s: float, wanted_n: int) -> None:
+    def _receive(self, device: FakeDevice, timeout_s: float, wanted_n: int) -> None:
         assert not device.closed
         if not device.script:
             self.clock.now_s += timeout_s  # the device had nothing: the read waited it out
@@ -63,7 +62,7 @@ class FakeSource(LiveSource):
         self.counters.frames += item
         self._queue.append(coded_accel(k), np.zeros((item, 3), np.uint8), np.zeros(item, bool), self.clock.now_s + k / FS_HZ)
 
-    def _close(self, device: Any) -> None:
+    def _close(self, device: FakeDevice) -> None:
         device.closed = True
         if self.close_raises:
             raise OSError(errno.ENODEV, "No such device")
