@@ -58,6 +58,10 @@ SK_MEMINFO_DROPS = 8  # index in the u32 array SO_MEMINFO returns (Linux >= 4.6)
 # is left at its default (docs/drivers.md) are several times 100.
 COALESCE_FRAMES = 100
 MAX_COALESCE_S = 0.05
+# The most frames gathered before they are decoded: a block's worth up to this many (recvmmsg
+# takes at most 1024 messages a call, UIO_MAXIOV), so that a reader's buffers stay small (128
+# bytes a frame) whatever max_block_s and fs_hz are; a larger block is gathered in several.
+MAX_BATCH_FRAMES = 1024
 
 
 class BusPort(ABC):
@@ -172,6 +176,7 @@ class CanSource(LiveSource[can.BusABC]):
         self.coalesce_s = coalesce_s
         self._decoder = CanFrameDecoder(layout, fs_hz, self.counters, self._queue)
         self._frames_per_instant = layout.frames_per_instant
+        self._batch_frames = min(self.max_block_n * self._frames_per_instant, MAX_BATCH_FRAMES)
         self._reader: FrameReader | None = None
         self._drops_seen = 0  # the current bus's kernel drop count already counted
         self._start()
@@ -179,7 +184,7 @@ class CanSource(LiveSource[can.BusABC]):
     def _open(self) -> can.BusABC:
         bus = self.port.open()
         try:
-            self._reader = self.port.frame_reader(bus, self.max_block_n * self._frames_per_instant)
+            self._reader = self.port.frame_reader(bus, self._batch_frames)
         except BaseException:
             bus.shutdown()
             raise
@@ -194,10 +199,10 @@ class CanSource(LiveSource[can.BusABC]):
         self._decoder.restart()
 
     def _receive(self, device: can.BusABC, timeout_s: float, wanted_n: int) -> None:
-        """Gather frames until wanted_n instants' worth are in or timeout_s is over, then decode them."""
+        """Gather frames until wanted_n instants' worth (or a batch) are in or timeout_s is over, then decode them."""
         reader = self._reader
         assert reader is not None
-        wanted = wanted_n * self._frames_per_instant
+        wanted = min(wanted_n * self._frames_per_instant, self._batch_frames)
         end_s = self._clock() + timeout_s
         try:
             got = reader.receive(wanted, timeout_s)  # an idle bus: block until a frame comes

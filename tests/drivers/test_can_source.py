@@ -412,6 +412,31 @@ def test_the_socketcan_kind_reads_its_socket_in_batches_and_the_virtual_kind_thr
         virtual_bus.shutdown()
 
 
+class CapacityRecordingPort(CanBusPort):
+    def __init__(self, channel: str) -> None:
+        super().__init__("virtual", channel)
+        self.capacities: list[int] = []
+
+    def frame_reader(self, bus: can.BusABC, capacity: int):
+        self.capacities.append(capacity)
+        return super().frame_reader(bus, capacity)
+
+
+def test_a_reader_holds_a_blocks_frames_up_to_1024_and_a_larger_block_is_gathered_in_several_batches() -> None:
+    small, large = CapacityRecordingPort(channel_name()), CapacityRecordingPort(channel_name())
+    with CanSource(small, PER_NODE, FS_HZ, max_block_s=0.1), CanSource(large, PER_NODE, FS_HZ, max_block_s=2.0) as source:
+        assert small.capacities == [50 * 4] and large.capacities == [1024]
+        sender = stamped_sender(large.channel)
+        try:
+            for message in layout_frames(PER_NODE, np.arange(600)):  # 2400 frames queued at once
+                sender.send(message)
+            block = source.read(0.5)
+        finally:
+            sender.shutdown()
+    (segment,) = check_blocks([block])
+    np.testing.assert_array_equal(segment, np.arange(600))  # one block, gathered 1024 frames at a time
+
+
 @pytest.mark.parametrize("name", ["hub", "per-node"])
 def test_a_socketcan_source_delivers_every_sample_of_its_socket(datagram_socketcan, name: str) -> None:
     layout = LAYOUTS[name]
