@@ -31,6 +31,7 @@ from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink, LogSink
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
+from bogiemon.drivers.recording import RecordingError
 
 SourceFactory = Callable[[BogiemonConfig], Source]
 STATUS_PERIOD_S = 10.0
@@ -185,6 +186,11 @@ class Service:
                 error=monitor.store_failure or str(pipeline.error),
             )  # fmt: skip
             return EXIT_STORE_FAILED
+        if isinstance(pipeline.error, RecordingError):
+            # A replayed recording bad further in: the windows before it were judged and their events
+            # committed; the file is named as a user error (one line, exit 2), never as a crash.
+            self._log.error("the recording cannot be read on, stopping", error=str(pipeline.error))
+            raise pipeline.error
         return EXIT_INTERNAL_ERROR if pipeline.error is not None else EXIT_OK
 
     def _start_pipeline(self, monitor: Monitor) -> Pipeline:

@@ -158,10 +158,6 @@ def is_sample_recording_name(path: str | Path) -> bool:
     return str(path).lower().endswith((".csv", ".csv.gz", PARQUET_SUFFIX))
 
 
-# The name before Parquet recordings; daemon/sources.py still calls it.
-is_csv_recording_name = is_sample_recording_name
-
-
 # ------------------------------------------------------------------------------------------------
 # Reading
 

@@ -171,7 +171,7 @@ def _read(file: InputFile, task: DayTask) -> list[Block]:
     """A recording's blocks on Unix time; raises for what cannot be used (the caller names it)."""
     # Opened as `replay` and `run` open a recording (the config's [source] layout and DBC for a
     # CAN log), in larger blocks for a CSV (fewer calls; the windows do not depend on them).
-    source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_csv else None)
+    source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_samples else None)
     try:
         blocks = _blocks(source)
     finally:

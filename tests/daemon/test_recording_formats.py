@@ -19,7 +19,7 @@ from bogiemon.daemon.analysis import analyze_recording, indicators_as_dict, open
 from bogiemon.daemon.config import BogiemonConfig, load_config
 from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.health import SensorProblem
-from bogiemon.daemon.monitor import WindowReport
+from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.drivers.recording import RecordingError, read_recording, write_csv_recording, write_parquet_recording
@@ -54,8 +54,8 @@ def config(config_path: Path) -> BogiemonConfig:
     return load_config(config_path)
 
 
-def replayed(path: Path, config: BogiemonConfig) -> tuple[list[WindowReport], MemorySink]:
-    reports: list[WindowReport] = []
+def replayed(path: Path, config: BogiemonConfig) -> tuple[list[WindowVerdict], MemorySink]:
+    reports: list[WindowVerdict] = []
     sink = MemorySink()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # an overflow or an invalid value in the core fails the replay
@@ -139,7 +139,7 @@ def test_a_bad_row_found_late_stops_the_replay_after_the_windows_before_it_were_
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join(lines) + "\n")
 
-    reports: list[WindowReport] = []
+    reports: list[WindowVerdict] = []
     sink = MemorySink()
     with pytest.raises(RecordingError, match=rf"bad.csv: line {bad_line}: a1 is not a number: 'x"):
         replay([bad], config, sinks=[sink], observers=[reports.append])
