@@ -6,9 +6,11 @@ Nothing here runs in a plain `pytest` (no `-n`): a single process runs the tests
   transfer, the container's boot, a Dask cluster, the browser) form one `xdist_group`, so that one
   worker computes the fixture once instead of every worker that draws one of its tests; every
   other test is a unit of its own.
-- The longest units start first: those with a `slow` test, then the groups, then the rest, each
-  in collection order (with `--no-loadscope-reorder`, xdist hands the units out in this order), so
-  that no long unit starts last and keeps the run waiting for it alone.
+- The longest units start first, so that none starts last and keeps the run waiting for it alone:
+  those in LONGEST (their measured seconds, longest first), then the other units with a `slow`
+  test, then the other groups, then the rest, each in collection order (with
+  `--no-loadscope-reorder` xdist hands the units out in this order). A stale figure in LONGEST
+  changes the order only, never what runs.
 - The simulator's compiled kernels (models A and B, simulator/kernel.py) are compiled once, into
   numba's cache, by two processes the controller starts while the workers collect; each worker
   waits for them before its first test instead of compiling the same kernels itself (about 40 s
@@ -33,6 +35,26 @@ COMPILE_KERNEL = (
     "from bogiemon.simulator.run import simulate; from bogiemon.simulator.scenario import Scenario; "
     "simulate(Scenario(duration_s=1.0, model={model!r}))"
 )
+
+
+# Units that took 20 s or more in one process (`pytest --durations`, 2026-12-03, on two busy cores):
+# a group by its name (the module of the fixture its tests share), a test of its own by a prefix of
+# its node id.
+LONGEST = {
+    "tests/lab/test_transfer.py": 160,  # the quick transfer's two tests
+    "tests/lab/test_study.py": 128,
+    "tests/fleet/test_fleet_demo.py": 128,
+    "tests/test_fuzz_quick.py": 115,
+    "tests/lab/test_transfer.py::test_a_wagon_30_percent_off": 108,
+    "tests/lab/test_evaluation.py": 85,
+    "tests/fleet/test_fleet_pipeline.py": 77,
+    "tests/daemon/test_calibrate.py": 62,
+    "tests/lab/test_fleetsim.py": 48,
+    "tests/systemd/test_system.py": 33,
+    "tests/lab/test_robust.py": 28,
+    "tests/daemon/test_sensor_scenarios.py": 27,
+    "tests/daemon/test_service.py::test_sighup_after_include_5": 21,
+}
 
 
 def _is_worker(config: pytest.Config) -> bool:
@@ -99,12 +121,16 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))
         groups = sorted(str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group"))
         unit[item.nodeid] = "_".join(groups) if groups else item.nodeid
+    seconds = {u: float(LONGEST.get(u, 0.0)) for u in unit.values()}
+    for item in items:
+        if unit[item.nodeid] == item.nodeid:  # a test of its own
+            seconds[item.nodeid] = max((s for prefix, s in LONGEST.items() if "::" in prefix and item.nodeid.startswith(prefix)), default=0.0)
     slow_units = {unit[item.nodeid] for item in items if any(item.iter_markers("slow"))}
     grouped_units = {unit[item.nodeid] for item in items if unit[item.nodeid] != item.nodeid}
 
-    def rank(item: pytest.Item) -> int:
+    def rank(item: pytest.Item) -> tuple[float, int]:
         u = unit[item.nodeid]
-        return 0 if u in slow_units else 1 if u in grouped_units else 2
+        return -seconds[u], 0 if u in slow_units else 1 if u in grouped_units else 2
 
     items.sort(key=rank)  # stable: collection order within each rank, the same on every worker
 
