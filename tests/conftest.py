@@ -11,6 +11,10 @@ Nothing here runs in a plain `pytest` (no `-n`): a single process runs the tests
   test, then the other groups, then the rest, each in collection order (with
   `--no-loadscope-reorder` xdist hands the units out in this order). A stale figure in LONGEST
   changes the order only, never what runs.
+- Every test process, and every process it starts, runs OpenBLAS on one thread and lets OpenMP's
+  (numba's) idle threads sleep: otherwise OpenBLAS's second thread spins after every small call,
+  a core burnt for nothing (tests/lab/test_robust.py alone: 46 s of CPU, 23 s on one thread), and
+  the workers are the parallelism. The gateway's unit and the Dask workers run OpenBLAS so too.
 - The simulator's compiled kernels (models A and B, simulator/kernel.py) are compiled once, into
   numba's cache, by two processes the controller starts while the workers collect; each worker
   waits for them before its first test instead of compiling the same kernels itself (about 40 s
@@ -27,6 +31,10 @@ import tempfile
 from collections.abc import Iterator
 
 import pytest
+
+# Set before numpy is first imported (OpenBLAS reads it when it loads); a value given outside wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
 # The controller tells the workers where the compile's lock is (the workers inherit its environment).
 KERNEL_LOCK_ENV = "BOGIEMON_TEST_KERNEL_LOCK"
