@@ -1,6 +1,11 @@
-"""How `make test` spreads the suite over pytest-xdist's workers (`-n N --dist loadgroup`).
+"""What every test process shares, and how `make test` spreads the suite over pytest-xdist's workers.
 
-Nothing here runs in a plain `pytest` (no `-n`): a single process runs the tests as before.
+Every test process, and every process it starts, runs OpenBLAS on one thread and lets OpenMP's
+(numba's) idle threads sleep: otherwise OpenBLAS's second thread spins after every small call, a
+core burnt for nothing (tests/lab/test_robust.py alone: 46 s of CPU, 23 s on one thread), and the
+workers are the parallelism. The gateway's unit and the Dask workers run OpenBLAS so too.
+
+Under `-n N --dist loadgroup --no-loadscope-reorder` only (a plain `pytest` runs as before):
 
 - A unit of work: tests that share a module-scoped fixture (a simulated fleet, the quick study or
   transfer, the container's boot, a Dask cluster, the browser) form one `xdist_group`, so that one
@@ -8,13 +13,8 @@ Nothing here runs in a plain `pytest` (no `-n`): a single process runs the tests
   other test is a unit of its own.
 - The longest units start first, so that none starts last and keeps the run waiting for it alone:
   those in LONGEST (their measured seconds, longest first), then the other units with a `slow`
-  test, then the other groups, then the rest, each in collection order (with
-  `--no-loadscope-reorder` xdist hands the units out in this order). A stale figure in LONGEST
-  changes the order only, never what runs.
-- Every test process, and every process it starts, runs OpenBLAS on one thread and lets OpenMP's
-  (numba's) idle threads sleep: otherwise OpenBLAS's second thread spins after every small call,
-  a core burnt for nothing (tests/lab/test_robust.py alone: 46 s of CPU, 23 s on one thread), and
-  the workers are the parallelism. The gateway's unit and the Dask workers run OpenBLAS so too.
+  test, then the other groups, then the rest, each in collection order (xdist hands the units out
+  in this order). A stale figure in LONGEST changes the order only, never what runs.
 - The simulator's compiled kernels (models A and B, simulator/kernel.py) are compiled once, into
   numba's cache, by two processes the controller starts while the workers collect; each worker
   waits for them before its first test instead of compiling the same kernels itself (about 40 s
@@ -73,12 +73,16 @@ def _is_controller(config: pytest.Config) -> bool:
     return not _is_worker(config) and bool(getattr(config.option, "numprocesses", None)) and config.getoption("dist", "no") != "no"
 
 
+_COMPILERS = pytest.StashKey[tuple[list[subprocess.Popen[bytes]], str]]()
+
+
 def pytest_configure(config: pytest.Config) -> None:
     if not _is_controller(config):
         return
     fd, lock_path = tempfile.mkstemp(prefix="bogiemon-kernel-compile-", suffix=".lock")
     fcntl.flock(fd, fcntl.LOCK_EX)
     # The compiling processes inherit the locked file: the lock is released when the last of them ends.
+    # Should one fail, the workers compile what they need themselves, as without this.
     compilers = [
         subprocess.Popen([sys.executable, "-c", COMPILE_KERNEL.format(model=model)], pass_fds=(fd,),
                          stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -87,9 +91,6 @@ def pytest_configure(config: pytest.Config) -> None:
     os.close(fd)
     os.environ[KERNEL_LOCK_ENV] = lock_path
     config.stash[_COMPILERS] = (compilers, lock_path)
-
-
-_COMPILERS = pytest.StashKey[tuple[list[subprocess.Popen[bytes]], str]]()
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
