@@ -33,9 +33,13 @@ fleet-demo: $(STAMP)
 
 # First the house's import contract (tests/house.py: the layers in pyproject.toml), then pytest.
 # pytest exits 5 when it collects no tests: that is a failure here, never a pass.
+# The tests run in TEST_WORKERS pytest-xdist processes, twice the cores and at most 8 by default:
+# many of them wait on processes, sockets and the clock rather than compute (tests/conftest.py says
+# how the work is grouped and ordered). `make test TEST_WORKERS=0` runs them in one process.
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); echo $$((2 * n < 8 ? 2 * n : 8)))
 test: $(STAMP) system-deps
 	$(PY) tests/house.py
-	$(PY) -m pytest; status=$$?; \
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder; status=$$?; \
 	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
 	exit $$status
 
