@@ -280,6 +280,7 @@ class BogiemonConfig(Section):
             periodic_every_h=r.periodic_every_h,
             periodic_s=r.periodic_s,
             max_total_bytes=r.max_total_bytes,
+            format=r.format,
             reserve_bytes=event_store_reserve_bytes(status_outbox_messages),
             window_s=self.processing.window_s,
             hop_s=self.processing.hop_s,

@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, field_val
 
 from bogiemon.daemon.events import INDICATOR_FIELDS
 from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Method
+from bogiemon.drivers.recording import RecordingFormat
 from bogiemon.detection import Corner, ProcessingSettings
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES
 
@@ -474,6 +475,7 @@ class RecorderConfig(Section):
     # One periodic recording is held in memory until written: an hour at 500 Hz is 21 MiB.
     periodic_s: float = Field(300.0, gt=0, le=3600)
     max_total_bytes: int = Field(512 * MIB, ge=MIB, le=2**50)
+    format: RecordingFormat = RecordingFormat.CSV_GZ
 
     @model_validator(mode="after")
     def _periodic_fits(self) -> RecorderConfig:

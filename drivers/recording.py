@@ -39,6 +39,7 @@ stream decompressing to at most 100 times its size, lines of at most 1 MiB.
 
 from __future__ import annotations
 
+import enum
 import gzip
 import math
 import os
@@ -99,6 +100,17 @@ _WRITE_CHUNK_ROWS = 65536
 GZIP_LEVEL = 6
 PARQUET_MAGIC = b"PAR1"
 PARQUET_SUFFIX = ".parquet"
+
+
+class RecordingFormat(enum.StrEnum):
+    """The formats a recording is written in (`[recorder] format`); read by any of its names."""
+
+    CSV_GZ = "csv.gz"
+    PARQUET = "parquet"
+
+    @property
+    def suffix(self) -> str:
+        return f".{self.value}"
 # Rows per Parquet row group (2.1 min at 500 Hz): a row group is read whole, 2 MiB decoded.
 PARQUET_GROUP_ROWS = 65536
 # What a row group of a Parquet recording may hold (decoded: 32 MiB) and declare uncompressed per
