@@ -100,6 +100,9 @@ class Record:
     date: str  # ISO 8601, UTC
     commit: str
     command: str
+    # The 1, 5 and 15 min load averages when it was recorded: a shared machine's figures are higher
+    # and noisier (a record should come from a quiet one).
+    load_average: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def as_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -111,7 +114,7 @@ class Record:
             machine=MachineClass(str(machine["arch"]), str(machine["cpu_model"]), int(machine["cores"])),
             key=str(data["key"]), unit=str(data["unit"]), median=float(data["median"]), min=float(data["min"]),
             max=float(data["max"]), runs=int(data["runs"]), date=str(data["date"]), commit=str(data["commit"]),
-            command=str(data["command"]),
+            command=str(data["command"]), load_average=tuple(float(v) for v in data.get("load_average", (0.0, 0.0, 0.0)))[:3],
         )  # fmt: skip
 
 
@@ -188,7 +191,8 @@ def to_record(
             refused.append(f"{f.key}: {format_value(f.median, f.unit)} missed its target "
                            f"{format_value(f.target or 0.0, f.unit)}; not recorded (--accept-worse records it)")  # fmt: skip
             continue
-        out.append(Record(machine, f.key, f.unit, f.median, f.min, f.max, f.runs, date, commit, command))
+        load = tuple(round(v, 2) for v in os.getloadavg())
+        out.append(Record(machine, f.key, f.unit, f.median, f.min, f.max, f.runs, date, commit, command, (load[0], load[1], load[2])))
     return out, refused
 
 
