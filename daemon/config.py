@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import math
 import tomllib
 from collections.abc import Callable, Sequence
 from importlib import resources
@@ -211,7 +212,8 @@ class BogiemonConfig(Section):
         """The load states this wagon was commissioned in (empty: the shipped load model decides)."""
         return tuple(
             LoadSignature(
-                load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit, st.lowest_excitation_mps2
+                load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit, st.lowest_excitation_mps2,
+                math.inf if st.highest_excitation_mps2 is None else st.highest_excitation_mps2,
             )
             for load, st in sorted(self.decision.load_states.items())
         )

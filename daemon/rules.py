@@ -68,6 +68,10 @@ class Threshold:
     def level(self, value: float) -> Level:
         return Level.of(abs(value - self.center), self.warning, self.alarm)
 
+    def widened(self, factor: float) -> Threshold:
+        """The same center with both levels x factor (>= 1)."""
+        return self if factor == 1.0 else Threshold(self.warning * factor, self.alarm * factor, self.center)
+
     def levels(self, values: ArrayLike) -> NDArray[np.int64]:
         """The level of each value (an array of Level values)."""
         return np.asarray(level_of(np.abs(np.asarray(values, dtype=np.float64) - self.center), self.warning, self.alarm))
