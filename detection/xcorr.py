@@ -36,10 +36,32 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy import fft
 from numpy.typing import NDArray
-from scipy import fft
 
 from bogiemon.detection.hops import HopAssembler
+
+
+def next_fast_len(n: int) -> int:
+    """The smallest 5-smooth number (2^a 3^b 5^c) >= n: a length pocketfft transforms fastest.
+
+    scipy.fft.next_fast_len(n, real=True), written out: the core transforms with numpy.fft (the
+    same pocketfft, the same values bit for bit) so that a command that only analyses never
+    imports scipy.fft, whose array-API layer and scipy.special cost a third of a second of start-up.
+    """
+    if n < 1:
+        raise ValueError(f"a transform length is at least 1, got {n}")
+    best = 1 << max(n - 1, 0).bit_length()  # the next power of two
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            # The smallest power of two taking p35 to n or beyond.
+            p2 = 1 << max(-(-n // p35) - 1, 0).bit_length()
+            best = min(best, p35 * p2)
+            p35 *= 3
+        p5 *= 5
+    return best
 
 
 def xcorr_direct(x: NDArray[np.float64], y: NDArray[np.float64], max_lag_n: int) -> NDArray[np.float64]:
@@ -109,8 +131,8 @@ class StreamingCrossCorrelator:
         # Only channels of lagged pairs need history; map them to compact columns.
         self._lag_channels = sorted({c for pair in self._pairs for c in pair})
         self._lag_col = {c: i for i, c in enumerate(self._lag_channels)}
-        self._nfft_block = fft.next_fast_len(hop_n + max_lag_n, real=True)
-        self._nfft_head = fft.next_fast_len(max(2 * max_lag_n, 1), real=True)  # used when K > H
+        self._nfft_block = next_fast_len(hop_n + max_lag_n)
+        self._nfft_head = next_fast_len(max(2 * max_lag_n, 1))  # used when K > H
         self._pair_cols = (
             np.array([self._lag_col[i] for i, _ in self._pairs], dtype=np.intp),
             np.array([self._lag_col[j] for _, j in self._pairs], dtype=np.intp),

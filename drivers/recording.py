@@ -335,7 +335,7 @@ class _RowChecker:
         if self.reference_step_s is None:
             steps = dt_s[1:first_bad] if self.last_s is None else dt_s[:first_bad]
             if steps.size:
-                self.reference_step_s = float(np.median(steps[:REFERENCE_STEPS]))
+                self.reference_step_s = _median(steps[:REFERENCE_STEPS])
         if self.reference_step_s is not None:
             step_s = self.reference_step_s
             with np.errstate(invalid="ignore"):
@@ -377,6 +377,14 @@ class _RowChecker:
             f"time step {float(dt_s[i]):.6g} s differs from the file's {step_s:.6g} s ({1.0 / step_s:.6g} Hz); "
             "recordings must be uniformly sampled: split the file at the gap",
         )
+
+
+def _median(values: NDArray[np.float64]) -> float:
+    """np.median of finite values, the same bits (the middle one, or the mean of the two middle
+    ones), without the numpy.ma that np.median imports to check for masked arrays."""
+    ordered = np.sort(values)
+    middle = ordered.size // 2
+    return float(ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
 def _first(mask: NDArray[np.bool_]) -> int:
@@ -626,9 +634,20 @@ def _drain(f: UntrustedFile) -> None:
 
 
 def _columns(batch: pa.RecordBatch) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    time_s = batch.column(0).to_numpy(zero_copy_only=False)
-    accel = np.column_stack([batch.column(i).to_numpy(zero_copy_only=False) for i in (1, 2, 3)])
+    time_s = _numpy(batch.column(0))
+    accel = np.column_stack([_numpy(batch.column(i)) for i in (1, 2, 3)])
     return time_s, accel
+
+
+def _numpy(column: pa.Array) -> NDArray[np.float64]:
+    """A float64 column as a numpy view of its values' buffer (no nulls: refused before, and none
+    in the CSV's types). Array.to_numpy gives the same view, after importing pandas (a tenth of a
+    second of a command's start-up) to learn that it need not convert."""
+    if column.null_count:
+        return column.to_numpy(zero_copy_only=False)
+    values = np.frombuffer(column.buffers()[1], dtype=np.float64, count=len(column), offset=8 * column.offset)
+    values.flags.writeable = False  # as to_numpy's view: the file's values, not a scratch array
+    return values
 
 
 # -- Parquet -------------------------------------------------------------------------------------
