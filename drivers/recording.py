@@ -501,7 +501,9 @@ class _CsvReader(RecordingReader):
                         if block[:offset].strip(b"\r\n"):
                             yield from parse(block[:offset])
                         self.error(problem)
-                    number += block.count(b"\n") + block.count(b"\r") - block.count(b"\r\n")
+                    # Line numbers for messages; CRs counted only where there is one (two more
+                    # scans of every block cost a tenth of a second per hour of recording).
+                    number += block.count(b"\n") + (block.count(b"\r") - block.count(b"\r\n") if b"\r" in block else 0)
             except _LongLine:
                 self.error(f"line {number}: longer than {size_text(MAX_LINE_BYTES)}; {RECORDING_FILE.description}: is this the right file?")
 
@@ -597,6 +599,11 @@ def _survey(f: UntrustedFile, data: bytes) -> _Survey:
 def _count_lines(data: bytes) -> tuple[int, int]:
     """(lines holding anything, line breaks) in data, numpy's vector compare over its bytes (a
     CRLF is one line break; so is a lone CR or LF)."""
+    if b"\r" not in data and b"\n\n" not in data:
+        # What a recorder writes: LF only and no blank line, so every line break but a last one
+        # starts a line. One C scan of the bytes instead of numpy's four.
+        breaks = data.count(b"\n")
+        return (breaks - data.endswith(b"\n") + (data[:1] not in (b"\n", b""))), breaks
     codes = np.frombuffer(data, dtype=np.uint8)
     crlf = data.count(b"\r\n") if data.find(b"\r") >= 0 else -1
     line_break = codes == 10 if crlf < 0 else (codes == 10) | (codes == 13)
