@@ -336,7 +336,7 @@ def analyze_fleet(
     started = time.perf_counter()
     check_options(scheduler, n_workers)
     fleet = scan_fleet(root)
-    out = output_folder(out_dir, FleetError, "WINDOWS").resolve()  # what lies inside it is checked against it
+    out = output_folder(out_dir, FleetError, "WINDOWS", {"FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
     ledger = read_ledger(out)
     _remove_temporaries(out)
     tasks = day_tasks(fleet, out)
@@ -378,6 +378,7 @@ def analyze_fleet(
     written = {_ledger_key(t, out): i for t in tasks if (i := identity(t.path)) is not None}
     document = summary.as_dict() | {"written": written}
     try:
+        make_room(out / SUMMARY_FILE, out)  # a folder there (WINDOWS is analyze's own) would refuse the rename for good
         write_text_atomically(out / SUMMARY_FILE, json.dumps(document, indent=1) + "\n")
     except OSError as exc:
         raise FleetError(f"{shown(out / SUMMARY_FILE)}: cannot be written ({exc.strerror or exc})") from None

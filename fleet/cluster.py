@@ -131,6 +131,10 @@ def _connect(scheduler: str) -> Any:
         raise ClusterError(f"--scheduler {shown(repr(scheduler), 80)}: {one_line(exc)}") from None
     except (OSError, TimeoutError) as exc:
         raise ClusterError(f"cannot reach the Dask scheduler at {shown(scheduler, 80)} ({one_line(exc)}); is it running?") from None
+    except Exception as exc:  # noqa: BLE001 - what answers there is no Dask scheduler (an HTTP server's reply read as a frame length: MemoryError)
+        raise ClusterError(
+            f"{shown(scheduler, 80)} did not answer as a Dask scheduler ({type(exc).__name__}: {one_line(exc, 160)}); is that its address?"
+        ) from None
 
 
 def local_client(n_workers: int | None = None) -> Any:

@@ -246,12 +246,14 @@ def judge_fleet(
     started = time.perf_counter()
     if not Path(windows_dir).is_dir():
         raise JudgeError(f"{shown(windows_dir)}: no such windows dataset (run `bogiemon fleet analyze FLEET -o {shown(windows_dir)}` first)")
-    out = output_folder(out_dir, JudgeError, "JUDGED").resolve()  # what lies inside it is checked against it
     fleet = scan_fleet(fleet_root if fleet_root is not None else fleet_root_of(windows_dir))
+    out = output_folder(out_dir, JudgeError, "JUDGED", {"WINDOWS": windows_dir, "FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
     judged = _judge_all(fleet, windows_dir, client, progress)
     relative = fleet_relative(fleet, judged)
     entries = []
     try:
+        for name in ("events.jsonl", "wagons.json"):
+            make_room(out / name, out)  # a folder there (JUDGED is the judge's own) would refuse the rename for good
         write_text_atomically(out / "events.jsonl", "".join(encode_event(j.wagon_id, seq, event) + "\n" for j in judged for seq, event in j.events))
         for wagon, j in zip(fleet.wagons, judged, strict=True):
             series_path = out / "series" / f"wagon={wagon.wagon_id}" / SERIES_FILE

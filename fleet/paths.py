@@ -14,6 +14,7 @@ import datetime as dt
 import os
 import shutil
 import stat
+from collections.abc import Mapping
 from pathlib import Path
 
 import pyarrow as pa
@@ -58,12 +59,13 @@ def day_in_range(date: dt.date) -> bool:
     return FIRST_DAY <= date <= LAST_DAY
 
 
-def output_folder(path: str | os.PathLike[str], error: type[Exception], what: str) -> Path:
-    """A folder to write into (made if missing); error naming it when it is something else or
-    cannot be made."""
+def output_folder(path: str | os.PathLike[str], error: type[Exception], what: str, inputs: Mapping[str, str | os.PathLike[str]]) -> Path:
+    """A folder to write into (made if missing); error naming it when it is something else,
+    cannot be made, or lies in one of the run's inputs ({name: folder})."""
     folder = Path(path)
     if not is_utf8(folder):
         raise error(f"{shown(folder)}: {what} must have a UTF-8 name (Parquet and JSON hold no other); rename it")
+    outside_inputs(folder, error, what, inputs)
     if folder.exists() and not folder.is_dir():
         raise error(f"{shown(folder)}: not a folder; {what} is a folder: name a new one or an earlier one")
     try:
@@ -73,6 +75,31 @@ def output_folder(path: str | os.PathLike[str], error: type[Exception], what: st
     if not os.access(folder, os.W_OK | os.X_OK):
         raise error(f"{shown(folder)}: {what} is not writable")
     return folder
+
+
+def outside_inputs(path: Path, error: type[Exception], what: str, inputs: Mapping[str, str | os.PathLike[str]]) -> None:
+    """error when path ('..' and symlinks resolved) is one of the inputs or lies inside one: the
+    run would read what it writes (WINDOWS inside FLEET is scanned as a wagon, JUDGED inside
+    WINDOWS as a partition)."""
+    try:
+        resolved = path.resolve()
+        for name, folder in inputs.items():
+            if resolved.is_relative_to(Path(folder).resolve()):
+                raise error(f"{shown(path)}: {what} lies inside {name} ({shown(folder)}); write it beside {name}, not into it")
+    except (OSError, RuntimeError) as exc:  # a symlink loop
+        raise error(f"{shown(path)}: cannot be resolved ({one_line(exc)})") from None
+
+
+def output_file(path: str | os.PathLike[str], error: type[Exception], what: str, inputs: Mapping[str, str | os.PathLike[str]]) -> Path:
+    """A file to write (renamed over what is there); error when something other than a regular
+    file is in its place (a rename over /dev/null, run as root, would replace the device) or when
+    it lies in one of the run's inputs."""
+    out = Path(path)
+    outside_inputs(out, error, what, inputs)
+    place = place_of(out)
+    if place not in (None, "missing"):
+        raise error(f"{shown(out)}: {place} in its place; {what} is a file: name a new one, or remove what is there")
+    return out
 
 
 def make_room(path: Path, root: Path) -> str | None:

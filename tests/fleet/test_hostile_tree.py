@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import threading
-from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -26,25 +24,6 @@ NOT_UTF8 = os.fsdecode(b"07\xff\xfe.csv.gz")  # what Python lists for a name who
 
 def _reasons(issues) -> dict[str, str]:  # type: ignore[no-untyped-def]
     return {Path(i.path).name: i.reason for i in issues}
-
-
-def _without_blocking(call: Callable[[], object], limit_s: float = 20.0) -> BaseException | None:
-    """What call raised (None if nothing), failing the test if it is still running after limit_s."""
-    outcome: list[BaseException | None] = []
-
-    def run() -> None:
-        try:
-            call()
-        except BaseException as exc:  # noqa: BLE001 - handed to the test
-            outcome.append(exc)
-        else:
-            outcome.append(None)
-
-    worker = threading.Thread(target=run, daemon=True)
-    worker.start()
-    worker.join(limit_s)
-    assert not worker.is_alive(), f"still running after {limit_s:g} s: it blocks"
-    return outcome[0]
 
 
 def test_a_recording_whose_name_is_not_utf8_is_skipped_and_named_and_the_rest_goes_on(tmp_path: Path) -> None:
@@ -99,14 +78,14 @@ def test_a_day_no_gateways_clock_reads_is_skipped_and_the_fleet_judged_and_repor
 def test_fleet_toml_as_a_fifo_is_one_clear_error_without_blocking(tmp_path: Path) -> None:
     root = tiny.fleet(tmp_path / "fleet")
     os.mkfifo(root / "fleet.toml")
-    error = _without_blocking(lambda: scan_fleet(root))
+    error = tiny.without_blocking(lambda: scan_fleet(root))
     assert isinstance(error, FleetError) and str(error) == f"{root / 'fleet.toml'}: not a regular file; " + 'fleet.toml is a page of TOML ([fleet] and [wagons."<id>"])'
 
 
 def test_fleet_toml_as_a_link_to_dev_zero_is_one_clear_error_without_reading_it(tmp_path: Path) -> None:
     root = tiny.fleet(tmp_path / "fleet")
     (root / "fleet.toml").symlink_to("/dev/zero")
-    error = _without_blocking(lambda: scan_fleet(root))
+    error = tiny.without_blocking(lambda: scan_fleet(root))
     assert isinstance(error, FleetError)
     assert "leads out of the fleet folder" in str(error)
 
@@ -144,7 +123,7 @@ def test_a_calibration_that_is_a_fifo_skips_the_wagon_rather_than_judging_it_unc
     root = tiny.fleet(tmp_path / "fleet")
     os.mkfifo(root / "W1" / "calibration.toml")
     scanned = []
-    assert _without_blocking(lambda: scanned.append(scan_fleet(root))) is None
+    assert tiny.without_blocking(lambda: scanned.append(scan_fleet(root))) is None
     assert [w.wagon_id for w in scanned[0].wagons] == ["W2"]
     assert "calibration.toml: not a regular file" in _reasons(scanned[0].issues)["bogiemon.toml"]
 

@@ -7,6 +7,8 @@ a wagon judged by thresholds on 20-s windows analyses a 45-s recording in a few 
 from __future__ import annotations
 
 import datetime as dt
+import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -52,3 +54,22 @@ def fleet(root: Path, wagons: tuple[str, ...] = ("W1", "W2"), days: tuple[str, .
 def analyze(root: Path, out: Path, **kwargs: object) -> AnalyzeSummary:
     """`fleet analyze` with its tasks in this process (no Dask: the files are what is tested)."""
     return analyze_fleet(root, out, runner=InProcess(), **kwargs)  # type: ignore[arg-type]
+
+
+def without_blocking(call: Callable[[], object], limit_s: float = 20.0) -> BaseException | None:
+    """What call raised (None if nothing), failing the test if it is still running after limit_s."""
+    outcome: list[BaseException | None] = []
+
+    def run() -> None:
+        try:
+            call()
+        except BaseException as exc:  # noqa: BLE001 - handed to the test
+            outcome.append(exc)
+        else:
+            outcome.append(None)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(limit_s)
+    assert not worker.is_alive(), f"still running after {limit_s:g} s: it blocks"
+    return outcome[0]
