@@ -40,7 +40,7 @@ from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.fleet import rows
 from bogiemon.fleet.cluster import DaskRunner, Runner, check_options, dask_runner, local_client
 from bogiemon.fleet.layout import Fleet, FleetError, InputFile, Issue, scan_fleet
-from bogiemon.fleet.paths import make_room, output_folder, shown, write_parquet
+from bogiemon.fleet.paths import inside, make_room, output_folder, shown, write_parquet
 from bogiemon.fleet.windows_files import (
     FORMAT, PART_FILE, SUMMARY_FILE, Footer, PartitionError, PartitionMeta, content_digest, identity, partition_path, partition_place, read_footer,
     read_ledger, read_partition,
@@ -405,7 +405,8 @@ def _ledger_key(task: DayTask, out: Path) -> str:
 def _remove_temporaries(out: Path) -> None:
     """What a run killed while writing left: hidden temporaries of partitions."""
     for stale in out.glob("wagon=*/date=*/.*"):
-        if final_name_of(stale.name) == PART_FILE:
+        # glob follows a symlinked wagon= or date= folder: what lies outside WINDOWS is not ours to remove
+        if final_name_of(stale.name) == PART_FILE and inside(out, stale.parent):
             if stale.is_dir() and not stale.is_symlink():
                 shutil.rmtree(stale, ignore_errors=True)
             else:

@@ -58,7 +58,7 @@ def calibrate_wagon(
     if days:
         unknown = sorted(set(days) - {d.date for d, _ in partitions})
         if unknown:
-            raise FleetError(f"{wagon_id}: no analysed windows for {', '.join(unknown)} (run `bogiemon fleet analyze` first)")
+            raise FleetError(f"{wagon_id}: no analysed windows for {shown(', '.join(unknown), 200)} (run `bogiemon fleet analyze` first)")
         chosen = [(d, p) for d, p in partitions if d.date in set(days)]
     else:
         chosen = partitions[: max(1, first_days)]

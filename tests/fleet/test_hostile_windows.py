@@ -21,7 +21,8 @@ from bogiemon.fleet.judge import judge_fleet
 from bogiemon.fleet.judged_files import ReportError
 from bogiemon.fleet.layout import day_start_s
 from bogiemon.fleet.report import write_report
-from bogiemon.fleet.windows_files import DIGEST_KEY, METADATA_KEY, partition_path, read_partition
+from bogiemon.drivers.atomic import temporary_name
+from bogiemon.fleet.windows_files import DIGEST_KEY, METADATA_KEY, PART_FILE, partition_path, read_partition
 from tests.fleet import tiny
 
 DAY = tiny.DAYS[0]
@@ -131,6 +132,21 @@ def test_a_folder_in_the_place_of_the_analysis_summary_is_replaced_not_a_failure
     (windows / "_analysis.json").mkdir()
     again = tiny.analyze(root, windows)
     assert again.reused == 4 - again.analysed and json.loads((windows / "_analysis.json").read_text())["partitions"] == 4
+
+
+def test_a_wagon_folder_of_windows_linked_elsewhere_loses_nothing_there(tmp_path: Path) -> None:
+    # A run killed while writing leaves temporaries, which the next removes: never through a link.
+    root = tiny.fleet(tmp_path / "fleet", wagons=("W1",))
+    windows = tmp_path / "windows"
+    elsewhere = tmp_path / "elsewhere"
+    theirs = elsewhere / f"date={DAY}" / temporary_name(Path(PART_FILE)).name
+    theirs.parent.mkdir(parents=True)
+    theirs.write_bytes(b"theirs")
+    windows.mkdir()
+    (windows / "wagon=W1").symlink_to(elsewhere)
+    summary = tiny.analyze(root, windows)
+    assert theirs.read_bytes() == b"theirs"
+    assert summary.analysed == 2 and (windows / "wagon=W1").is_dir() and not (windows / "wagon=W1").is_symlink()
 
 
 # ---- JUDGED --------------------------------------------------------------------------------------
