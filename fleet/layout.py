@@ -19,7 +19,7 @@ from typing import Any
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
 from bogiemon.drivers.files import FileKind, read_untrusted
 from bogiemon.drivers.recording import is_sample_recording_name
-from bogiemon.fleet.paths import FIRST_DAY, LAST_DAY, day_in_range, inside, is_utf8, one_line, shown
+from bogiemon.fleet.paths import FIRST_DAY, inside, is_utf8, last_day, one_line, shown
 
 FLEET_FILE = "fleet.toml"
 WAGON_CONFIG = "bogiemon.toml"
@@ -166,8 +166,9 @@ def _read_fleet_file(root: Path) -> dict[str, Any]:
     return data
 
 
-def scan_fleet(root: str | Path) -> Fleet:
-    """The fleet under root; FleetError only when root or its fleet.toml cannot be used."""
+def scan_fleet(root: str | Path, today: dt.date | None = None) -> Fleet:
+    """The fleet under root; FleetError only when root or its fleet.toml cannot be used. A day
+    after the day after `today` (default: today, UTC) is skipped as no clock's reading yet."""
     if not is_utf8(root):
         raise FleetError(f"{shown(root)}: the fleet folder's name is not UTF-8 (the windows, events and report hold UTF-8 only); rename it")
     try:
@@ -206,7 +207,7 @@ def scan_fleet(root: str | Path) -> Fleet:
     wagons = []
     for wagon_id in ids:
         entry = listed.get(wagon_id, {})
-        wagon = _scan_wagon(root, wagon_id, str(entry.get("type", default_type)), entry.get("config"), issues)
+        wagon = _scan_wagon(root, wagon_id, str(entry.get("type", default_type)), entry.get("config"), last_day(today), issues)
         if wagon is not None:
             wagons.append(wagon)
     return Fleet(root, str(meta.get("name", root.name)), tuple(wagons), tuple(issues))
@@ -234,7 +235,7 @@ def _config_path(root: Path, folder: Path, config_name: str | None) -> Path | st
     return path
 
 
-def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | None, issues: list[Issue]) -> Wagon | None:
+def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | None, newest: dt.date, issues: list[Issue]) -> Wagon | None:
     folder = root / wagon_id
     config_path = _config_path(root, folder, config_name)
     if isinstance(config_path, str):
@@ -273,8 +274,8 @@ def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | N
         if day is None:
             issues.append(Issue(str(entry), "a folder whose name is no date (YYYY-MM-DD); skipped"))
             continue
-        if not day_in_range(day):
-            issues.append(Issue(str(entry), f"a day outside {FIRST_DAY} .. {LAST_DAY} (no gateway's clock reads it); skipped"))
+        if not FIRST_DAY <= day <= newest:
+            issues.append(Issue(str(entry), f"a day outside {FIRST_DAY} .. {newest} (no gateway's clock reads it now); skipped"))
             continue
         if not inside(root, entry):
             issues.append(Issue(str(entry), "leads out of the fleet folder ('..' and symlinks resolved); skipped"))

@@ -27,6 +27,9 @@ from bogiemon.drivers.files import FileKind, UntrustedFile, open_untrusted
 # last one is no clock's reading (drivers/base.py MAX_TIME_S); a day folder outside is skipped.
 FIRST_DAY = dt.date(2000, 1, 1)
 LAST_DAY = dt.datetime.fromtimestamp(MAX_TIME_S, dt.timezone.utc).date() - dt.timedelta(days=1)
+# Nor is a day after tomorrow (UTC) yet: a gateway whose clock was set years ahead would otherwise
+# stand as the wagon's latest state until that day came. A day of margin for the time zones.
+FUTURE_DAYS = 1
 SHOWN_CHARS = 500  # a path in a message: at most this long
 
 
@@ -55,8 +58,10 @@ def inside(root: Path, path: Path) -> bool:
         return False
 
 
-def day_in_range(date: dt.date) -> bool:
-    return FIRST_DAY <= date <= LAST_DAY
+def last_day(today: dt.date | None = None) -> dt.date:
+    """The last day a recording may lie on, seen on `today` (default: today, UTC)."""
+    today = today if today is not None else dt.datetime.now(dt.timezone.utc).date()
+    return min(LAST_DAY, today + dt.timedelta(days=FUTURE_DAYS))
 
 
 def output_folder(path: str | os.PathLike[str], error: type[Exception], what: str, inputs: Mapping[str, str | os.PathLike[str]]) -> Path:

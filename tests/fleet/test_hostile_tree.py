@@ -5,6 +5,7 @@ finding 4)."""
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import os
 from pathlib import Path
@@ -61,7 +62,10 @@ def test_a_fleet_folder_whose_name_is_not_utf8_is_one_clear_error(tmp_path: Path
         tiny.analyze(tiny.fleet(tmp_path / "fleet"), tmp_path / os.fsdecode(b"windows\xff"))
 
 
-@pytest.mark.parametrize("date", ["0001-01-01", "9999-12-31", "1999-12-31", "2100-01-01"])
+AFTER_TOMORROW = (dt.datetime.now(dt.timezone.utc).date() + dt.timedelta(days=2)).isoformat()
+
+
+@pytest.mark.parametrize("date", ["0001-01-01", "9999-12-31", "1999-12-31", "2100-01-01", AFTER_TOMORROW])
 def test_a_day_no_gateways_clock_reads_is_skipped_and_the_fleet_judged_and_reported(tmp_path: Path, date: str) -> None:
     root = tiny.fleet(tmp_path / "fleet")
     # Times from the recording's own origin, which the analysis places at its day's midnight.
@@ -71,8 +75,15 @@ def test_a_day_no_gateways_clock_reads_is_skipped_and_the_fleet_judged_and_repor
     judged = judge_fleet(tmp_path / "windows", tmp_path / "judged")
     report = write_report(tmp_path / "judged", tmp_path / "report.html")
 
-    assert _reasons(summary.issues)[date] == "a day outside 2000-01-01 .. 2099-12-31 (no gateway's clock reads it); skipped"
+    newest = min("2099-12-31", (dt.datetime.now(dt.timezone.utc).date() + dt.timedelta(days=1)).isoformat())
+    assert _reasons(summary.issues)[date] == f"a day outside 2000-01-01 .. {newest} (no gateway's clock reads it now); skipped"
     assert summary.partitions == 4 and judged.wagons == 2 and report.wagons == 2
+
+
+def test_tomorrow_is_a_day_a_clock_reads_somewhere_already(tmp_path: Path) -> None:
+    root = tiny.fleet(tmp_path / "fleet", wagons=("W1",), days=(tiny.DAYS[0], "2026-12-04"))
+    assert [d.date for d in scan_fleet(root, today=dt.date(2026, 12, 3)).wagon("W1").days] == [tiny.DAYS[0], "2026-12-04"]
+    assert [d.date for d in scan_fleet(root, today=dt.date(2026, 12, 2)).wagon("W1").days] == [tiny.DAYS[0]]
 
 
 def test_fleet_toml_as_a_fifo_is_one_clear_error_without_blocking(tmp_path: Path) -> None:
