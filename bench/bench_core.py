@@ -13,6 +13,7 @@ Run with `make bench-core` or `.venv/bin/python bench/bench_core.py [--minutes M
 from __future__ import annotations
 
 import argparse
+import functools
 import subprocess
 import sys
 import tempfile
@@ -23,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from baseline import naive_indicators  # noqa: E402
-from timing import Figure, table, time_each, time_interleaved  # noqa: E402
+from timing import Figure, table, time_interleaved  # noqa: E402
 
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings  # noqa: E402
 from bogiemon.drivers.recording import read_recording, write_csv_recording, write_parquet_recording  # noqa: E402
@@ -82,7 +83,7 @@ def analyze_figures(runs: int) -> list[Figure]:
         write_parquet_recording(parquet_path, samples.time_s, samples.accel_mps2)
         commands = [[sys.executable, "-m", "bogiemon.daemon.cli.main", "analyze", str(path)] for path in (csv_path, parquet_path)]
         csv_s, parquet_s = time_interleaved(
-            [lambda command=command: subprocess.run(command, check=True, stdout=subprocess.DEVNULL) for command in commands], runs
+            [functools.partial(subprocess.run, command, check=True, stdout=subprocess.DEVNULL) for command in commands], runs
         )
     csv_figure = Figure.of("analyze_1h_x_realtime", "`bogiemon analyze`, one-hour 500 Hz CSV, whole process", "x real time",
                            [data_s / s for s in csv_s], COMMAND, target=ANALYZE_TARGET_X_REALTIME)  # fmt: skip

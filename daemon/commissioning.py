@@ -77,7 +77,7 @@ RUN_GAP_HOPS = 1.5  # consecutive windows further apart than this many hops begi
 class LoadSplit:
     """The commissioning windows per load state, and how the states were told apart."""
 
-    windows: dict[str, list[WindowIndicators]]
+    windows: dict[LoadState, list[WindowIndicators]]
     by_prior: bool  # split by the shipped load model: the keeper should state the loads instead
     note: str
 
@@ -92,7 +92,7 @@ def split_loads(windows: Sequence[WindowIndicators], geometry: BogieGeometry, pr
     A prior: on a wagon unlike our simulator it may put both loads in one state (module docstring),
     so the result says so, and a keeper commissions each load with its own recordings instead.
     """
-    out: dict[str, list[WindowIndicators]] = {}
+    out: dict[LoadState, list[WindowIndicators]] = {}
     for w in windows:
         if load_features(w, geometry) is None:
             continue
@@ -104,7 +104,7 @@ def split_loads(windows: Sequence[WindowIndicators], geometry: BogieGeometry, pr
     return LoadSplit(out, True, note)
 
 
-def load_signature(load: str, windows: Sequence[WindowIndicators], geometry: BogieGeometry) -> LoadSignature | None:
+def load_signature(load: LoadState, windows: Sequence[WindowIndicators], geometry: BogieGeometry) -> LoadSignature | None:
     """The load state's centre, robust scale and familiarity limit from its windows."""
     x = np.array([v for w in windows if (v := load_features(w, geometry)) is not None])
     if len(x) == 0:

@@ -19,7 +19,7 @@ from typing import Any
 from bogiemon.daemon.messages import EventMessage
 from bogiemon.drivers.atomic import write_bytes_atomically
 from bogiemon.fleet import svg
-from bogiemon.fleet.judged_files import EVENT_KINDS, STATES, Judged, ReportError, WagonPage, read_judged
+from bogiemon.fleet.judged_files import EVENT_KINDS, STATES, Judged, ReportError, WagonPage, WagonState, read_judged
 from bogiemon.fleet.plot import (
     ALARM_COLOUR, EVENT_COLOURS, EVENT_TEXT_COLOURS, MAX_IDLE_S, SCORE_COLOUR, STATE_COLOURS, TREND_COLOUR, WARNING_COLOUR, wagon_plot,
 )  # fmt: skip
@@ -31,7 +31,7 @@ class ReportSummary:
     path: Path
     wagons: int
     bytes: int
-    states: Mapping[str, int]  # wagons per state, every state listed
+    states: Mapping[WagonState, int]  # wagons per state, every state listed
     events: int
     skipped_inputs: int
     points: int  # plotted points after decimation, all wagons and panels
@@ -272,8 +272,8 @@ def render(judged: Judged, title: str | None = None, written_utc: datetime | Non
         else '<p class="small muted">No input skipped.</p>'
     )
     sections, points = [], 0
-    for page in judged.wagons:
-        html_section, n = _section(page)
+    for wagon_page in judged.wagons:
+        html_section, n = _section(wagon_page)
         sections.append(html_section)
         points += n
     header = (

@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bogiemon.fleet.layout import Issue
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("fleet", help="the back office: re-analyse a fleet's recordings on Dask, judge every wagon, report")
     fleet_sub = p.add_subparsers(dest="fleet_command", metavar="STEP", required=True)
 
@@ -60,7 +65,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     r.set_defaults(run=run_report)
 
 
-def _progress(label: str):  # type: ignore[no-untyped-def]
+def _progress(label: str) -> Callable[[int, int], None]:
     from bogiemon.daemon.cli.progress import ProgressBar
 
     bar = ProgressBar(sys.stderr, label)
@@ -155,7 +160,7 @@ def run_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_issues(issues) -> None:  # type: ignore[no-untyped-def]
+def _print_issues(issues: Sequence[Issue]) -> None:
     if not issues:
         return
     print(f"{len(issues)} input(s) skipped:", file=sys.stderr)

@@ -27,7 +27,7 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def client():  # type: ignore[no-untyped-def]
+def client():
     from bogiemon.fleet.analyze import local_client
 
     c = local_client(2)
@@ -64,7 +64,7 @@ def _comparable(event: Event) -> tuple[object, ...]:
             json.dumps(dict(event.details), sort_keys=True))  # fmt: skip
 
 
-def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_path: Path, runs: tree.Runs, client) -> None:
     files = _fleet(tmp_path / "fleet", runs)
     analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
     judge_fleet(tmp_path / "windows", tmp_path / "judged")
@@ -86,7 +86,7 @@ def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_
     assert next(iter(wagons)) == "W1"  # the most urgent first
 
 
-def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:
     _fleet(tmp_path / "fleet", runs)
 
     def interrupt(done: int, total: int) -> None:
@@ -122,7 +122,7 @@ def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path
     assert again.analysed == 0 and again.windows == fresh.windows
 
 
-def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.Runs, client) -> None:
     _fleet(tmp_path / "fleet", runs)
     analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
     tree.place(runs.healthy[1], tmp_path / "fleet" / "W2", "2026-11-04", "06:00")
@@ -131,7 +131,7 @@ def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.R
     assert [r.date for r in summary.results if not r.reused] == ["2026-11-04"]
 
 
-def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: tree.Runs, client) -> None:
     root = tmp_path / "fleet"
     _fleet(root, runs)
     good = tree.place(runs.healthy[0], root / "W2", "2026-11-04", "06:00")
@@ -163,7 +163,7 @@ def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: t
     assert any("3 input(s) skipped" in n for n in notes["W2"])
 
 
-def test_fleet_calibrate_learns_what_bogiemon_calibrate_learns_from_the_same_days(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_fleet_calibrate_learns_what_bogiemon_calibrate_learns_from_the_same_days(tmp_path: Path, runs: tree.Runs, client) -> None:
     root = tmp_path / "fleet"
     files = _fleet(root, runs)
     analyze_fleet(root, tmp_path / "windows", client=client)
