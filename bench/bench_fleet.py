@@ -65,7 +65,7 @@ def build_fleet(root: Path, runs: list[Path], wagons: int, days: int, recordings
     from bogiemon.drivers.recording import read_csv_recording, write_csv_recording
 
     loaded = [read_csv_recording(p) for p in runs]
-    start = dt.datetime(2026, 11, 2, tzinfo=dt.timezone.utc).timestamp()
+    start = dt.datetime(2026, 11, 2, tzinfo=dt.UTC).timestamp()
     total_s = 0.0
     for w in range(wagons):
         folder = root / f"31-80-{w:04d}"

@@ -43,16 +43,17 @@ def first_call_s(cache_dir: str) -> float:
 
 def compile_figures(runs: int) -> list[Figure]:
     """Seconds to the first simulated second in a fresh process: compiling, then from the cache."""
-    compile_s, cached_s = [], []
+    compile_s: list[float] = []
+    cached_s: list[float] = []
     for _ in range(runs):
         with tempfile.TemporaryDirectory() as cold:
             compile_s.append(first_call_s(cold))
             cached_s.append(first_call_s(cold))
     cached = Figure.of("simulator_first_call_cached_s", "simulator first call, fresh process, kernel cached", "s",
                        cached_s, COMMAND, higher_is_better=False)  # fmt: skip
-    cold = Figure.of("simulator_first_call_compile_s", "simulator first call, fresh process, empty numba cache", "s",
+    compiling = Figure.of("simulator_first_call_compile_s", "simulator first call, fresh process, empty numba cache", "s",
                      compile_s, COMMAND, higher_is_better=False)  # fmt: skip
-    return [cold.compare(cached), cached]
+    return [compiling.compare(cached), cached]
 
 
 def speed_figures(runs: int, duration_s: float, batch_n: int) -> list[Figure]:
@@ -60,7 +61,7 @@ def speed_figures(runs: int, duration_s: float, batch_n: int) -> list[Figure]:
     broken = (parse_fault("type_a:rear_outer:0.0@leading-left"),)
     single = Scenario(duration_s=duration_s, faults=broken)
     batch = [Scenario(duration_s=duration_s, seed=s, faults=broken if s % 2 else ()) for s in range(batch_n)]
-    threads = numba.config.NUMBA_NUM_THREADS
+    threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]  # numba.config sets its options at import
 
     def one_thread() -> None:
         numba.set_num_threads(1)
@@ -88,7 +89,7 @@ def model_b_speed_figures(runs: int, duration_s: float, batch_n: int) -> list[Fi
     single_a = Scenario(duration_s=duration_s, faults=broken)
     single_b = Scenario(model="b", duration_s=duration_s, faults=broken)
     batch = [Scenario(model="b", duration_s=duration_s, seed=s, faults=broken if s % 2 else ()) for s in range(batch_n)]
-    threads = numba.config.NUMBA_NUM_THREADS
+    threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]  # numba.config sets its options at import
 
     def one_thread(scenario: Scenario) -> None:
         numba.set_num_threads(1)
@@ -107,7 +108,8 @@ def model_b_speed_figures(runs: int, duration_s: float, batch_n: int) -> list[Fi
 
 def model_b_compile_figures(runs: int) -> list[Figure]:
     """Model B's first call in a fresh process: compiling its kernel, then from the cache."""
-    compile_s, cached_s = [], []
+    compile_s: list[float] = []
+    cached_s: list[float] = []
     for _ in range(runs):
         with tempfile.TemporaryDirectory() as cold:
             env = {**os.environ, "NUMBA_CACHE_DIR": cold}
@@ -116,9 +118,9 @@ def model_b_compile_figures(runs: int) -> list[Figure]:
                 out.append(float(done.stdout.strip()))
     cached = Figure.of("simulator_b_first_call_cached_s", "model B first call, fresh process, kernels cached", "s",
                        cached_s, COMMAND, higher_is_better=False)  # fmt: skip
-    cold = Figure.of("simulator_b_first_call_compile_s", "model B first call, fresh process, empty numba cache", "s",
+    compiling = Figure.of("simulator_b_first_call_compile_s", "model B first call, fresh process, empty numba cache", "s",
                      compile_s, COMMAND, higher_is_better=False)  # fmt: skip
-    return [cold.compare(cached), cached]
+    return [compiling.compare(cached), cached]
 
 
 def figures(runs: int = 5, duration_s: float = 120.0, batch_n: int = 16) -> list[Figure]:

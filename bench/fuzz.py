@@ -257,7 +257,7 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
             name, start, stop, limit_s = message
             target = targets[name]
             ctx.cache.clear()
-            tally, sent_sizes = Tally(), {}
+            tally, sent_sizes = Tally(), dict[tuple[str, str], int]()
             last_report = time.monotonic()
             for index in range(start, stop):
                 progress[0], progress[1] = index, time.monotonic()

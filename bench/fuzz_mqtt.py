@@ -110,6 +110,7 @@ def generate_message(rng: random.Random) -> list[Any]:
     else:
         body = None
     kind = rng.random()
+    payload: bytes | list[str]  # a list names a big payload the target builds
     if body is None:
         payload = rng.choice((b"online", b"offline", b"", b"\xff\xfe", b"x" * 10_000, m.random_bytes(32)))
     elif kind < 0.25:

@@ -267,13 +267,13 @@ def generate_source(rng: random.Random) -> fuzz_core.Input:
 
 def run_source(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     script = [item if isinstance(item, bytes) else list(item) for item in data["script"]]
-    script = [["open_fail", "enoent"]] * data["start_fails"] + script
+    script[:0] = [["open_fail", "enoent"]] * data["start_fails"]
     clock = FakeClock()
     opened: list[int] = []
 
     def opener(port: str, baudrate: int) -> ScriptedPort:
         if script and not isinstance(script[0], bytes) and script[0][0] == "open_fail":
-            raise _FAILURES[script.pop(0)[1]]()
+            raise _FAILURES[str(script.pop(0)[1])]()
         opened.append(len(script))
         return ScriptedPort(script, clock)
 

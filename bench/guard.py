@@ -110,11 +110,12 @@ class Record:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Record:
         machine = data["machine"]
+        one, five, fifteen = (float(v) for v in data.get("load_average", (0.0, 0.0, 0.0))[:3])
         return cls(
             machine=MachineClass(str(machine["arch"]), str(machine["cpu_model"]), int(machine["cores"])),
             key=str(data["key"]), unit=str(data["unit"]), median=float(data["median"]), min=float(data["min"]),
             max=float(data["max"]), runs=int(data["runs"]), date=str(data["date"]), commit=str(data["commit"]),
-            command=str(data["command"]), load_average=tuple(float(v) for v in data.get("load_average", (0.0, 0.0, 0.0)))[:3],
+            command=str(data["command"]), load_average=(one, five, fifteen),
         )  # fmt: skip
 
 

@@ -30,6 +30,7 @@ Run with `make soak` or `.venv/bin/python bench/soak.py [--short] [--json PATH]`
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import multiprocessing
 import sys
@@ -64,11 +65,11 @@ from soak_feed import (  # noqa: E402
     SoakSource,
     calibration_fragment,
     generate,
-    write_atomically,
 )
 from soak_schedule import FS_HZ, HOUR_S, Schedule, day_schedule, short_schedule  # noqa: E402
 
 from bogiemon.daemon.config import BogiemonConfig, load_config  # noqa: E402
+from bogiemon.drivers.atomic import write_text_atomically  # noqa: E402
 from bogiemon.daemon.events import EventKind  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
@@ -96,13 +97,17 @@ def bad_config_text(good: str) -> str:
     return good.replace('load = "full"', 'load = "full"\nconfirm_k = 9\nconfirm_n = 5')
 
 
+def _given(source: SoakSource, _config: BogiemonConfig) -> SoakSource:
+    return source
+
+
 def run_soak(schedule: Schedule, workdir: Path) -> SoakRun:
     state_dir = workdir / "state"
     config_path = workdir / "bogiemon.toml"
     variants = {"a": config_text(state_dir, "soak-a"), "b": config_text(state_dir, "soak-b")}
     variants["bad"] = bad_config_text(variants["a"])
     (workdir / "thresholds.toml").write_text("")
-    write_atomically(config_path, variants["a"])
+    write_text_atomically(config_path, variants["a"])
     ctx = multiprocessing.get_context("spawn")
     pieces = ctx.Queue(maxsize=4)
     generator = ctx.Process(target=generate, args=(schedule, pieces, 1), name="soak-generator", daemon=True)
@@ -125,7 +130,7 @@ def run_soak(schedule: Schedule, workdir: Path) -> SoakRun:
         while not feed.exhausted:
             notifier = RecordingNotifier()
             source = SoakSource(feed, config_path, variants, observer, notifier)
-            service = Service(config_path, lambda _c, s=source: s, notifier=notifier, observers=[observer.observe])
+            service = Service(config_path, functools.partial(_given, source), notifier=notifier, observers=[observer.observe])
             service.install_signal_handlers()
             source.lifetime.exit_status = service.run()
             lifetimes.append(source.lifetime)

@@ -62,7 +62,7 @@ def analyze_recording(
 T = TypeVar("T")
 
 
-def read_ahead(items: Generator[T, None, None], depth: int = 1) -> Iterator[T]:
+def read_ahead(items: Generator[T, None, None], depth: int = 1) -> Generator[T, None, None]:
     """items, produced in a thread of their own up to `depth` ahead of the consumer: a recording's
     next chunk is read and parsed (pyarrow, without the GIL) while the core works on this one.
     What the producer raises is raised here, in order; stopping early stops and closes it."""

@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -90,7 +90,7 @@ class FusedCalibration:
 
 @dataclass(frozen=True)
 class LoadCalibration:
-    load: str
+    load: LoadState
     n_judged: int
     indicators: tuple[IndicatorCalibration, ...]
     fused: FusedCalibration | None  # None when the processing windows are not the fused model's
@@ -107,7 +107,7 @@ class CalibrationResult:
     warning_rate: float
     alarm_rate: float
     loads: tuple[LoadCalibration, ...]
-    skipped: dict[str, int]  # loads seen with too few windows (auto): load -> windows
+    skipped: dict[LoadState, int]  # loads seen with too few windows (auto): load -> windows
     load_note: str = ""  # how the load states were told apart (auto)
     load_named_by_prior: bool = False  # one state, named by the shipped load model: the keeper should state it
     # The frame structure of its three sensors the wagon showed (which inverted/swapped checks hold):
@@ -232,7 +232,7 @@ def calibrate_windows(
                     f"calibration needs at least {MIN_WINDOWS}: record longer runs of the healthy wagon"
                 )
             continue
-        names = list(indicators) if indicators else list(config.decision.thresholds.get(ld, {}))  # type: ignore[call-overload]
+        names = list(indicators) if indicators else list(config.decision.thresholds.get(ld, {}))
         unknown = set(names) - set(INDICATOR_FIELDS)
         if not names or unknown:
             raise CalibrationError(f"indicators to calibrate must be among {', '.join(INDICATOR_FIELDS)}; got {names}")
@@ -263,7 +263,7 @@ def _indicator(name: str, values: list[float], warning_rate: float, alarm_rate: 
     return IndicatorCalibration(name, fit.center, fit.robust_sigma, fit.max_deviation, Threshold(warning=fit.warning, alarm=fit.alarm, center=fit.center))
 
 
-def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: str, run_of: Mapping[int, int] | None) -> FusedCalibration | None:
+def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: LoadState, run_of: Mapping[int, int] | None) -> FusedCalibration | None:
     model = shipped_models(config.decision.models_dir).fused[load]
     if not model.fits(config.processing_settings()):
         return None
@@ -289,7 +289,7 @@ def _fused(windows: Sequence[WindowIndicators], config: BogiemonConfig, load: st
 def fragment(result: CalibrationResult) -> str:
     """The calibration as a config fragment for the daemon's `include` list."""
     header = [
-        f"# Learned by `bogiemon calibrate` on {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC",
+        f"# Learned by `bogiemon calibrate` on {datetime.now(UTC):%Y-%m-%d %H:%M} UTC",
         f"# from {len(result.files)} recording(s) of a healthy wagon, load state '{result.load}':",
         *(f"#   {f}" for f in result.files),
         f"# {result.n_judged} of {result.n_windows} windows judged ("

@@ -116,7 +116,7 @@ def split_loads(windows: Sequence[WindowIndicators], geometry: BogieGeometry, pr
     return LoadSplit(out, True, note)
 
 
-def load_signature(load: str, windows: Sequence[WindowIndicators], geometry: BogieGeometry) -> LoadSignature | None:
+def load_signature(load: LoadState, windows: Sequence[WindowIndicators], geometry: BogieGeometry) -> LoadSignature | None:
     """The load state's centre, robust scale, the distance its windows reached and their range of
     excitation."""
     x = np.array([v for w in windows if (v := load_features(w, geometry)) is not None])

@@ -179,7 +179,7 @@ class BogiemonConfig(Section):
 
     def decision_settings(self) -> DecisionSettings:
         d = self.decision
-        thresholds = {
+        thresholds: dict[LoadState, dict[str, Threshold]] = {
             load: {name: Threshold(warning=t.warning, alarm=t.alarm, center=t.center) for name, t in per.items()}
             for load, per in d.thresholds.items()
         }
@@ -190,9 +190,9 @@ class BogiemonConfig(Section):
         models = shipped_models(self.decision.models_dir).fused
         out = {}
         for load, model in models.items():
-            own = self.decision.fused.get(load)  # type: ignore[call-overload]
+            own = self.decision.fused.get(load)
             levels = Levels(own.warning, own.alarm, own.trend_warning, own.trend_alarm) if own is not None else None
-            out[load] = model.calibrated(own.center, levels, own.covariance or None) if own is not None and levels is not None else model.population()
+            out[load] = model.calibrated(own.center, levels, np.asarray(own.covariance, dtype=np.float64) if own.covariance else None) if own is not None and levels is not None else model.population()
         return out
 
     def check_models(self) -> None:

@@ -100,7 +100,7 @@ class ThresholdConfig(Section):
 # Thresholds when the config names none (the shipped file states the same values): derived for
 # 120 s windows by the detection study (docs/study/defaults.md) with calibrate's rule from its
 # healthy runs at 40 to 120 km/h on ERRI low and high level track; recalibrate for other windows.
-DEFAULT_THRESHOLDS: dict[LoadState, dict[str, ThresholdConfig]] = {
+DEFAULT_THRESHOLDS: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = {
     LoadState.FULL: {"i4_norm": ThresholdConfig(center=-9.44e-05, warning=0.059, alarm=0.114)},
     LoadState.TARE: {
         "i4_norm": ThresholdConfig(center=-0.000235, warning=0.0292, alarm=0.044),

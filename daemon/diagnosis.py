@@ -239,7 +239,7 @@ def judge_signs(evidence: SignEvidence, windows: int) -> Diagnosis:
 
 def raw_shift(baseline: Baseline, whitened: NDArray[np.float64]) -> NDArray[np.float64]:
     """x - center from z = L (x - center)."""
-    return np.linalg.solve(baseline.whitening, whitened)
+    return np.linalg.solve(baseline.whitening, whitened).astype(np.float64, copy=False)
 
 
 def healthy_covariance(baseline: Baseline) -> NDArray[np.float64]:
@@ -248,7 +248,7 @@ def healthy_covariance(baseline: Baseline) -> NDArray[np.float64]:
     return inverse @ inverse.T
 
 
-def diagnose(shifts: Sequence[Sequence[float]], baseline: Baseline, load: str, trend: bool = False) -> Diagnosis:
+def diagnose(shifts: Sequence[Sequence[float] | NDArray[np.float64]], baseline: Baseline, load: str, trend: bool = False) -> Diagnosis:
     """The diagnosis from whitened coupling shifts z = L (x - center) of `baseline`.
 
     shifts: the confirming windows' shifts, or (trend=True) the one mean shift of the trend.

@@ -43,7 +43,8 @@ def configure_logging(stream: TextIO | None = None, level: str = "info") -> None
             structlog.processors.TimeStamper(fmt="iso", utc=True),
             structlog.processors.dict_tracebacks,
             structlog.processors.JSONRenderer(sort_keys=False),
-            _syslog_prefix,
+            # After the renderer the event is its JSON line, which structlog's Processor type cannot say.
+            _syslog_prefix,  # type: ignore[list-item]
         ],
         wrapper_class=structlog.make_filtering_bound_logger(_level_number(level)),
         logger_factory=lambda *_: _LineLogger(out),

@@ -17,15 +17,15 @@ SchemaError (one line), never a value the listener's store or printing cannot ha
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Final, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter, ValidationError, field_validator
 from pydantic_core import PydanticCustomError, PydanticSerializationError
 
 from bogiemon.daemon.events import Event
 
-EVENT_SCHEMA = "bogiemon.event/1"
-STATUS_SCHEMA = "bogiemon.status/1"
+EVENT_SCHEMA: Final = "bogiemon.event/1"
+STATUS_SCHEMA: Final = "bogiemon.status/1"
 # The retained payloads of the state topic: "online" on connect, "offline" as the last will.
 STATE_ONLINE, STATE_OFFLINE = "online", "offline"
 TOPIC_LEAVES = ("events", "status", "state")

@@ -189,7 +189,7 @@ class Baseline:
 
 def whitening_of(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
     """L with L^T L = covariance^-1 (the inverse of the lower Cholesky factor)."""
-    return np.linalg.inv(np.linalg.cholesky(np.asarray(covariance, dtype=np.float64)))
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(covariance, dtype=np.float64))).astype(np.float64, copy=False)
 
 
 @dataclass(frozen=True)

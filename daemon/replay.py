@@ -95,7 +95,8 @@ def replay(
         try:
             monitor: Monitor | None = None
             for path in paths:
-                run_config = config.model_copy(update={"source": replay_source_config(path, config, realtime)})
+                replay = replay_source_config(path, config, realtime)
+                run_config = config.model_copy(update={"source": replay})
                 source = open_source(run_config)
                 try:
                     # The rate of a CSV recording is its own: check the config can run at it
@@ -114,7 +115,7 @@ def replay(
                 )
                 reports.append(report)
                 if report.samples == 0:
-                    raise RecordingError(_no_samples_message(report, run_config.source))
+                    raise RecordingError(_no_samples_message(report, replay))
             assert monitor is not None
             monitor.save_state()
             return ReplaySummary(len(paths), monitor.counters, monitor.mode, tuple(reports))

@@ -58,8 +58,9 @@ class SimulatedSource(Source):
         finally:
             self._player_bus.shutdown()
 
-    @property  # type: ignore[override]
-    def last_error(self) -> str | None:
+    # Read-only, the reader's passed on: Source declares a plain attribute, which only a source sets.
+    @property
+    def last_error(self) -> str | None:  # type: ignore[override]
         return self._reader.last_error
 
     def read(self, timeout_s: float) -> Block | None:

@@ -70,7 +70,7 @@ class ProcessingSettings:
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
         for name in ("highpass_order", "lowpass_order"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= value <= MAX_FILTER_ORDER:
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= int(value) <= MAX_FILTER_ORDER:
                 raise ValueError(f"{name} must be a whole number from 1 to {MAX_FILTER_ORDER}, got {value!r}")
         fs = self.fs_hz
         if not MIN_FS_HZ <= fs <= MAX_FS_HZ:

@@ -92,7 +92,7 @@ class BogieGeometry:
 
         Three distinct corners of a rectangle are never collinear, so F is always invertible.
         """
-        return np.linalg.inv(self.sensor_matrix())
+        return np.linalg.inv(self.sensor_matrix()).astype(np.float64, copy=False)
 
 
 def to_modal(accel_mps2: NDArray[np.float64], geometry: BogieGeometry) -> NDArray[np.float64]:

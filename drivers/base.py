@@ -11,6 +11,7 @@ import enum
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
+from typing import Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,7 +126,7 @@ class Source(ABC):
     def close(self) -> None:  # noqa: B027 - optional for sources that hold nothing
         """Release the device or file."""
 
-    def __enter__(self) -> Source:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -54,7 +54,7 @@ def max_silence_s(modulus: int, fs_hz: float) -> float:
     return (modulus // 2 - 1) / fs_hz
 
 
-def status_bits(over_range: NDArray[np.float64], fault: NDArray[np.float64]) -> NDArray[np.uint8]:
+def status_bits(over_range: NDArray[np.number], fault: NDArray[np.number]) -> NDArray[np.uint8]:
     return (over_range != 0).astype(np.uint8) * np.uint8(SensorStatus.OVER_RANGE) | (fault != 0).astype(
         np.uint8
     ) * np.uint8(SensorStatus.SENSOR_FAULT)
@@ -402,9 +402,8 @@ class NodeAligner:
         self._have = have.tolist()
         self._next = (first + n_passed) % modulus
         self._last_time_s = float(times_s[-1])
-        for c, answered in enumerate(answers.any(axis=0).tolist()):
-            if answered:
-                self._behind[c] = 0
+        for c in np.flatnonzero(answers.any(axis=0)).tolist():
+            self._behind[c] = 0
         return AlignedSamples(values[rows], bits_status[rows], new_segment, first_time_s[rows], lost=n_lost)
 
     def _push_frame_by_frame(self, frames: NodeFrames) -> AlignedSamples:

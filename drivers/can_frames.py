@@ -294,7 +294,7 @@ def _libc_recvmmsg() -> Callable[..., int]:
     function = ctypes.CDLL(None, use_errno=True).recvmmsg
     function.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_uint, ctypes.c_int, ctypes.c_void_p]
     function.restype = ctypes.c_int
-    return function  # type: ignore[no-any-return]
+    return function
 
 
 class SocketFrameReader:
@@ -327,13 +327,14 @@ class SocketFrameReader:
         # What the kernel writes back into each header, as arrays over the headers themselves.
         self._received_bytes = self._field("msg_len", np.dtype(ctypes.c_uint))
         self._control_bytes = self._field("msg_controllen", np.dtype(ctypes.c_size_t))
-        self._msg_flags = self._field("msg_flags", np.intc)
+        self._msg_flags = self._field("msg_flags", np.dtype(np.intc))
         self._recvmmsg_call = _libc_recvmmsg()
         self._n = 0
 
     def _field(self, name: str, dtype: np.dtype) -> NDArray[np.integer]:
         offset = getattr(_MMsgHdr, name).offset if name == "msg_len" else _MMsgHdr.msg_hdr.offset + getattr(_MsgHdr, name).offset
-        return np.ndarray((self.capacity,), dtype=dtype, buffer=self._headers, offset=offset, strides=(ctypes.sizeof(_MMsgHdr),))
+        # A ctypes array is a writable buffer; numpy's stubs do not list ctypes among buffers.
+        return np.ndarray((self.capacity,), dtype=dtype, buffer=self._headers, offset=offset, strides=(ctypes.sizeof(_MMsgHdr),))  # type: ignore[arg-type]
 
     def receive(self, max_n: int, timeout_s: float) -> int:
         fd = self.socket.fileno()

@@ -67,7 +67,7 @@ class SignalCodec:
         return value
 
     def decode(self, words_le: NDArray[np.uint64], words_be: NDArray[np.uint64]) -> NDArray[np.float64]:
-        return self.raw(words_le, words_be) * self.scale + self.offset
+        return (self.raw(words_le, words_be) * self.scale + self.offset).astype(np.float64, copy=False)
 
     def to_raw(self, physical: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
         """Raw values rounded to the nearest step and clipped to the signal's range; and where clipped."""
@@ -213,6 +213,7 @@ def load_layout(dbc_path: str | Path | None, layout: str) -> CanLayout:
         db = cantools.database.load_string(text, database_format="dbc")
     except Exception as exc:  # cantools raises parser-specific errors; all mean a bad file
         raise DbcError(f"{source}: not a valid DBC file: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    assert isinstance(db, cantools.database.can.Database)  # what a DBC always loads as
     by_name = {m.name: m for m in db.messages}
     all_keys = {m.frame_id | (CAN_EFF_KEY if m.is_extended_frame else 0) for m in db.messages}
 

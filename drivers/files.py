@@ -40,7 +40,7 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import Literal, NoReturn, overload
 
 GZIP_MAGIC = b"\x1f\x8b"
 # A compressed file may always decompress to this much, whatever its ratio: a small file of a
@@ -176,6 +176,10 @@ class UntrustedFile(io.RawIOBase):
 
     # -- lines -----------------------------------------------------------------------------------
 
+    @overload
+    def lines(self, first_number: int = 1, chunk_bytes: int = 1 << 20, skip_long: Literal[False] = False) -> Iterator[tuple[int, bytes]]: ...
+    @overload
+    def lines(self, first_number: int = 1, chunk_bytes: int = 1 << 20, *, skip_long: bool) -> Iterator[tuple[int, bytes | None]]: ...
     def lines(self, first_number: int = 1, chunk_bytes: int = 1 << 20, skip_long: bool = False) -> Iterator[tuple[int, bytes | None]]:
         """(line number, bytes) of every line from here on, without its line break (CRLF, LF or CR).
 

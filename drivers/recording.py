@@ -58,6 +58,7 @@ from bogiemon.drivers.files import FileKind, UntrustedFile, open_untrusted, size
 
 if TYPE_CHECKING:
     import pyarrow as pa
+    import pyarrow.parquet as pq
 
 HEADER = "time_s,a1,a2,a3"
 COLUMNS = ("time_s", "a1", "a2", "a3")
@@ -213,8 +214,7 @@ class RecordingReader(ABC):
     def chunks(self) -> Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None]:
         checker = _RowChecker(self)
         self.clipped_samples = 0
-        for time_s, accel_mps2 in checker.checked(self._raw_chunks()):
-            yield time_s, accel_mps2
+        yield from checker.checked(self._raw_chunks())
         if checker.rows != self.n_samples or checker.last_s != self.last_s:
             self.error(
                 f"changed while it was read ({checker.rows} rows, not {self.n_samples}): is a logger still writing it? "
@@ -672,7 +672,7 @@ class _ParquetReader(RecordingReader):
     def where(self, row: int) -> str:
         return f"row {row + 1}"
 
-    def _open_file(self, f: UntrustedFile):  # type: ignore[no-untyped-def]
+    def _open_file(self, f: UntrustedFile) -> pq.ParquetFile:
         import pyarrow as pa
         import pyarrow.parquet as pq
 

@@ -327,11 +327,13 @@ class _LogEntries:
             try:
                 if suffix in self.RESUMABLE:
                     self._file = untrusted.text_lines()
+                    # python-can's readers take a TextIO or BinaryIO and use only what TextLines and
+                    # UntrustedFile provide: iteration over the lines, and read and seek.
                     self._reader: can.io.generic.MessageReader = (
                         can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)  # type: ignore[arg-type]
                     )
                 elif suffix == ".blf":
-                    self._reader = _CheckedBlfReader(untrusted)
+                    self._reader = _CheckedBlfReader(untrusted)  # type: ignore[arg-type]
                 else:
                     untrusted.close()  # checked; python-can's reader for the suffix opens it by name
                     self._reader = can.LogReader(str(path))
@@ -370,7 +372,7 @@ class _LogEntries:
                 self._reader = (
                     _ResumedAscReader(self._file, failed)
                     if isinstance(failed, can.ASCReader)
-                    else can.CanutilsLogReader(self._file)
+                    else can.CanutilsLogReader(self._file)  # type: ignore[arg-type]  # as in open
                 )
 
     def close(self) -> None:

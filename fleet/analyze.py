@@ -129,7 +129,7 @@ def day_tasks(fleet: Fleet, out_dir: str | Path) -> list[DayTask]:
 
 
 def _blocks(source: Source) -> list[Block]:
-    out = []
+    out: list[Block] = []
     while True:
         try:
             block = source.read(1.0)
@@ -191,7 +191,7 @@ class _OutOfDay(ValueError):
 
 def _after(blocks: list[Block], time_s: float) -> list[Block]:
     """The samples of blocks at or after time_s (half a sample's tolerance), the first one after a gap."""
-    out = []
+    out: list[Block] = []
     for block in blocks:
         keep = int(np.searchsorted(block.start_s + np.arange(block.n_samples) / block.fs_hz, time_s - 0.5 / block.fs_hz))
         if keep < block.n_samples:

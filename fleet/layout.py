@@ -134,7 +134,7 @@ def recording_kind(name: str) -> str | None:
 
 def day_start_s(date: str) -> float:
     """Midnight UTC of a YYYY-MM-DD day, in Unix seconds."""
-    return dt.datetime.strptime(date, "%Y-%m-%d").replace(tzinfo=dt.timezone.utc).timestamp()
+    return dt.datetime.strptime(date, "%Y-%m-%d").replace(tzinfo=dt.UTC).timestamp()
 
 
 def _read_fleet_file(root: Path) -> dict[str, Any]:

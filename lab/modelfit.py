@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,7 @@ from bogiemon.daemon.models import (
     whitening_of,
 )
 from bogiemon.daemon.rules import ALARM_MARGIN, suspicion_k, sustained_level, trend_weight
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES, load_vector
 
@@ -203,13 +204,13 @@ def _vectors(windows: Sequence[WindowIndicators], geometry: BogieGeometry) -> ND
     return np.array([r for r in rows if r is not None]).reshape(-1, len(COUPLING_NAMES))
 
 
-def _prior(covariance: NDArray[np.float64], processing: ProcessingSettings, calibration_median_score: float) -> FusedModel:
+def _prior(load: LoadState, covariance: NDArray[np.float64], processing: ProcessingSettings, calibration_median_score: float) -> FusedModel:
     """The fused model a commissioning starts from, with unit levels (only its spread and its
     calibration median matter to fit_spread's baseline and level factor)."""
     n = covariance.shape[0]
     unit = Levels(1.0, 1.0, 1.0, 1.0)
     return FusedModel(
-        "prior", COUPLING_NAMES, processing.window_s, processing.hop_s, covariance, unit, TREND_TAU_S,
+        load, COUPLING_NAMES, processing.window_s, processing.hop_s, covariance, unit, TREND_TAU_S,
         np.zeros(n), covariance, unit, calibration_median_score,
     )  # fmt: skip
 
@@ -244,12 +245,12 @@ def fit_fused(
         # applies: the shipped levels are what that factor multiplies.
         scored, trends = [], []
         for wagon in wagons:
-            cal, rest = by_wagon[wagon][:calibration_runs], by_wagon[wagon][calibration_runs:]
+            cal_runs, rest = by_wagon[wagon][:calibration_runs], by_wagon[wagon][calibration_runs:]
             others = np.concatenate([residuals[o] for o in wagons if o != wagon]) if len(wagons) > 1 else residuals[wagon]
-            prior = _prior(np.cov(others.T), processing, float(np.median(calibration_medians)))
-            bounds = np.cumsum([0] + [len(v) for v in cal])
+            prior = _prior(LoadState(load), np.cov(others.T), processing, float(np.median(calibration_medians)))
+            bounds = np.cumsum([0] + [len(v) for v in cal_runs])
             fit = fit_spread(
-                np.concatenate(cal), [list(range(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)], prior, processing.hop_s,
+                np.concatenate(cal_runs), [list(range(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)], prior, processing.hop_s,
                 confirm_k, confirm_n,
             )  # fmt: skip
             own = whitening_of(fit.covariance)
@@ -325,7 +326,7 @@ def fit_models(
 
 def write_models(models: FittedModels, directory: str | Path) -> list[Path]:
     directory = Path(directory)
-    stamp = f"{datetime.now(timezone.utc):%Y-%m-%d}"
+    stamp = f"{datetime.now(UTC):%Y-%m-%d}"
     header = [
         "# Fitted by `bogiemon evaluate --fit-models` (lab/modelfit.py states every rule) on " + stamp + ",",
         *(f"# {line}" for line in models.description.splitlines()),

@@ -84,7 +84,7 @@ def vehicle_parameters(parameter_set: dict[str, Any], load: str) -> VehicleParam
         body, frame, ws, prim = v["carbody"], v["bogie_frame"], v["wheelset"], v["primary"]
         bowl, sb = v["centre_bowl"], v["side_bearers"]
         return VehicleParameters(
-            load=load,  # type: ignore[arg-type]
+            load=load,
             gravity_mps2=float(v["gravity_mps2"]),
             carbody_mass_kg=float(cases["wagon"][f"carbody_mass_{load}_kg"]),
             carbody_pitch_inertia_kg_m2=float(body[f"pitch_inertia_{load}_kg_m2"]),

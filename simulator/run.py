@@ -237,7 +237,7 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
             if n_out[b]:
                 pieces[b].append(out[b, : n_out[b]].copy())
         remaining -= n_out
-        for b in np.flatnonzero(until_onset > 0):
+        for b in np.flatnonzero(until_onset > 0).tolist():
             until_onset[b] -= n_out[b]
             if until_onset[b] == 0:  # the spring breaks (or the damper changes) now
                 corner[b] = preps[b].model.corner_table()

@@ -7,6 +7,7 @@ every vehicle parameter, so that the sidecar written beside a recording reproduc
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass, field
@@ -50,7 +51,7 @@ class SpeedProfile:
                 raise SimulationError(f"speed profile point {t}:{v} is not finite")
             if not 0.0 <= v <= MAX_SPEED_KMH:
                 raise SimulationError(f"speed {v:g} km/h is outside 0..{MAX_SPEED_KMH:g} km/h")
-        if any(b <= a for a, b in zip(times, times[1:])):
+        if any(b <= a for a, b in itertools.pairwise(times)):
             raise SimulationError(f"speed profile times must increase strictly, got {times}")
         if times[0] < 0:
             raise SimulationError(f"speed profile times start at 0 s or later, got {times[0]:g}")

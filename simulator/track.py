@@ -163,7 +163,7 @@ def shaped_psd(
 def _synthesise(psd: Callable[[FloatArray], FloatArray], n: int, ds_m: float, rng: np.random.Generator) -> FloatArray:
     """One stationary Gaussian process of n samples with one-sided PSD `psd` (zero outside its band)."""
     n_fft = 1 << max(4, int(np.ceil(np.log2(n))))
-    omega = 2.0 * np.pi * np.fft.rfftfreq(n_fft, d=ds_m)
+    omega = (2.0 * np.pi * np.fft.rfftfreq(n_fft, d=ds_m)).astype(np.float64, copy=False)
     d_omega = omega[1]
     density = psd(omega)
     # Complex Gaussian amplitude with E|c|^2 = 1; a harmonic A c e^{i Omega s} with

@@ -110,7 +110,7 @@ def load_rules(pyproject: Mapping[str, object]) -> list[Rule]:
     house = pyproject["tool"]["bogiemon"]["house"]  # type: ignore[index]
     rules = []
     for kind in ("never", "lazily", "only_from"):
-        for entry in house.get(kind, []):  # type: ignore[union-attr]
+        for entry in house.get(kind, []):
             rules.append(Rule(kind, entry["layer"], tuple(entry["targets"]), entry["why"]))
     return rules
 

@@ -10,7 +10,7 @@ import sys
 _COLUMNS = ("start_s", "end_s", "I1", "I2", "I3", "I4", "I1n", "I2n", "I3n", "I4n")
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("analyze", help="compute the fault indicators of recordings, window by window")
     p.add_argument("files", nargs="+", metavar="FILE", help="recordings: CSV (header time_s,a1,a2,a3; .csv or .csv.gz) or .parquet")
     p.add_argument("--config", help="config file (default: the shipped default config)")

@@ -7,7 +7,7 @@ import argparse
 import sys
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("calibrate", help="learn the wagon's healthy baseline (fused score and thresholds) from recordings of it")
     p.add_argument("files", nargs="*", metavar="RECORDING", help="recordings of the healthy wagon in the load state --load names")
     p.add_argument(

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("check-config", help="validate a config file and print the resolved config")
     p.add_argument("file", nargs="?", help="the config file (default: the shipped default config)")
     p.set_defaults(run=run)

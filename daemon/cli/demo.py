@@ -13,7 +13,7 @@ import sys
 import tempfile
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TextIO
 
 from bogiemon.daemon.events import EventKind
 
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from bogiemon.daemon.verdict import WindowVerdict
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("demo", help="run the daemon on the bundled simulator: a healthy stretch, then a broken spring")
     p.add_argument("--config", help="demo config (default: the shipped config/demo.toml)")
     p.add_argument(
@@ -36,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 class LiveDisplay:
     """Prints one line per window and the events as they are committed."""
 
-    def __init__(self, duration_s: float, fault_at_s: float | None, out=sys.stdout) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, duration_s: float, fault_at_s: float | None, out: TextIO = sys.stdout) -> None:
         self.duration_s = duration_s
         self.fault_at_s = fault_at_s
         self.out = out

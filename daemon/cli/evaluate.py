@@ -10,7 +10,7 @@ from pathlib import Path
 from bogiemon.daemon.cli.progress import ProgressBar, check_report_folder
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "evaluate",
         help="evaluate the detection methods on a varied simulated fleet and write the report",

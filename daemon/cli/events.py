@@ -6,7 +6,7 @@ import argparse
 import json
 import re
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,7 +21,7 @@ class TimeArgumentError(ValueError):
     """A --since value that is neither a time nor a duration."""
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("events", help="list the events the daemon committed")
     p.add_argument("--config", help="config file naming the state directory (default: the shipped default)")
     p.add_argument("--state-dir", help="the state directory, overriding the config's")
@@ -44,7 +44,7 @@ def parse_since(text: str, now_s: float) -> float:
     except ValueError:
         raise TimeArgumentError(f"--since: '{text}' is not a time (2026-11-20T08:00Z, Unix seconds) or a duration (2h, 30min, 7d)") from None
     if moment.tzinfo is None:
-        moment = moment.replace(tzinfo=timezone.utc)
+        moment = moment.replace(tzinfo=UTC)
     return moment.timestamp()
 
 
@@ -52,7 +52,7 @@ def format_time(time_s: float) -> str:
     """Unix seconds as ISO 8601 UTC; a time no calendar holds (inf, nan, 1e300: a store written
     before times were checked at the source) as its number, so that listing a store never fails."""
     try:
-        return datetime.fromtimestamp(time_s, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        return datetime.fromtimestamp(time_s, tz=UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     except (OverflowError, OSError, ValueError):
         return f"time_s={time_s!r}"
 

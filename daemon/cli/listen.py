@@ -13,7 +13,7 @@ import signal
 import socket
 import sys
 import threading
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from bogiemon.daemon.delivery.listener import Received
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("listen", help="receive the wagons' events from an MQTT broker, each once")
     p.add_argument("--broker", required=True, metavar="HOST:PORT", help="the broker (an IPv6 address in brackets: [::1]:8883)")
     p.add_argument("--prefix", default="bogiemon", help="the wagons' topic prefix (default: bogiemon)")
@@ -85,7 +85,7 @@ def format_received(received: Received, as_json: bool, with_status: bool) -> str
         s = received.status
         if as_json:
             return dump(s)
-        when = datetime.fromtimestamp(s.time_s, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        when = datetime.fromtimestamp(s.time_s, tz=UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
         window = "no window yet" if s.window is None else ("judged" if s.window.judged else f"not judged ({s.window.gate or 'sensor fault'})")
         return f"{s.wagon_id}  status {when}  mode {s.mode}, {window}, outbox {s.outbox.pending_events} events pending"
     if received.state is not None and not as_json:

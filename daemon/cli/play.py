@@ -18,7 +18,7 @@ from bogiemon.drivers.canbus import KINDS
 LAYOUT_CHOICES = ("hub", "per-node")
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("play", help="send a CSV recording on a CAN bus as the sensors would (bench, tests)")
     p.add_argument("file", metavar="FILE", help="CSV recording (header time_s,a1,a2,a3)")
     p.add_argument("--interface", choices=sorted(KINDS), default="socketcan",

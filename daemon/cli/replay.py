@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from bogiemon.daemon.sinks import EventSink
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("replay", help="run recordings (CSV, Parquet or CAN logs) through the daemon's pipeline and print its events")
     p.add_argument("files", nargs="+", metavar="RECORDING", help="recordings (.csv, .csv.gz, .parquet) or CAN logs (.log, .asc, .blf), in time order")
     p.add_argument("--config", help="config file (default: the shipped default config)")

@@ -11,7 +11,7 @@ from bogiemon.daemon.cli.progress import ProgressBar
 _TRACKS = "perfect, erri-low, erri-high, fra-4, fra-5, fra-6"
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "simulate",
         help="simulate a Y25 wagon and write a CSV recording of the leading bogie's three sensors",

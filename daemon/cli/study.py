@@ -13,7 +13,7 @@ class StudyError(ValueError):
     """A study that cannot run as asked (bad output folder, bad window lengths); the message says why."""
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "study",
         help="run the detection study on the simulator and write its report (Table 4, figures, defaults)",

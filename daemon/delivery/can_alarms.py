@@ -16,6 +16,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +73,7 @@ def load_alarm_codecs(dbc_path: str | Path | None = None) -> AlarmCodecs:
         raise DbcError(f"{source}: cannot read the DBC file: {exc.strerror or exc}") from None
     except Exception as exc:  # cantools raises parser-specific errors; all mean a bad file
         raise DbcError(f"{source}: not a valid DBC file: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    assert isinstance(db, cantools.database.can.Database)  # what a DBC always loads as
     by_name = {m.name: m for m in db.messages}
     needs = {
         ALARM_MESSAGE: ("Counter", "Kind", "Severity", "Indicator", "Fired", "Value", "EventRef"),
@@ -128,7 +130,8 @@ def _event_ref(event: Event) -> int:
 def diagnosis_payload(codecs: AlarmCodecs, event: Event, alarm_counter: int) -> bytes:
     """The BogieDiagnosis of a CONFIRMED: the corners it names (a bit each), its trigger and confidence."""
     details = event.details if isinstance(event.details, dict) else {}
-    diagnosis = details.get("diagnosis") if isinstance(details.get("diagnosis"), dict) else {}
+    found = details.get("diagnosis")
+    diagnosis: dict[str, Any] = found if isinstance(found, dict) else {}
     corners = 0
     for name in diagnosis.get("corners", []) if isinstance(diagnosis.get("corners"), list) else []:
         corners |= next((bit for c, bit in CORNER_BITS.items() if c.value == name), 0)

@@ -105,7 +105,7 @@ class PahoTransport(MqttTransport):
 
         def on_message(_c: mqtt.Client, _u: Any, message: mqtt.MQTTMessage) -> None:
             self._qos_by_mid[message.mid] = message.qos
-            events.message(message.topic, message.payload, message.mid)
+            events.message(message.topic, bytes(message.payload), message.mid)
 
         self.client.on_connect = on_connect
         self.client.on_disconnect = on_disconnect

@@ -42,7 +42,7 @@ def _status_from_monitor(monitor: Monitor, wagon_id: str, time_s: float, outbox:
     return StatusMessage(
         wagon_id=wagon_id,
         time_s=time_s,
-        mode=report.mode if report is not None else monitor.mode,  # type: ignore[arg-type]
+        mode=report.mode if report is not None else monitor.mode,
         config_hash=monitor.settings.config_hash,
         window=window,
         counters=dict(vars(monitor.counters)),

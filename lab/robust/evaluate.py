@@ -161,7 +161,7 @@ def reuse(cached: Any, plan: EvaluationPlan, config: BogiemonConfig) -> Evaluati
     # The plan's runs too: a cache written before a run's definition changed (its conditions, its
     # role) holds other runs under an equal plan (a cache of some of its roles is whole for them).
     if cached.plan == plan and {r.run for r in cached.runs} <= set(plan.runs()):
-        return cached  # type: ignore[no-any-return]
+        return cached
     if cached.plan.fleet_seed == plan.fleet_seed and cached.plan.model == plan.model:
         return {r.run: r for r in cached.runs}
     return {}

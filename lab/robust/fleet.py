@@ -536,7 +536,7 @@ def simulate_plan(
         weight = sum(r.duration_s for r in batch) / total_s
         sim_share = _ANALYSIS_RATE / (_SIM_RATE + _ANALYSIS_RATE)
 
-        def report(fraction: float, base: float = done_s / total_s, weight: float = weight) -> None:
+        def report(fraction: float, base: float = done_s / total_s, weight: float = weight, sim_share: float = sim_share) -> None:
             if progress is not None:
                 progress(min(1.0, base + weight * sim_share * fraction))
 

@@ -14,6 +14,7 @@ from typing import Any
 from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import BogiemonConfig, validate_config
 from bogiemon.daemon.verdict import MonitorSettings, WindowJudge
+from bogiemon.daemon.vocabulary import LoadSetting
 from bogiemon.detection import WindowIndicators
 from bogiemon.lab.robust.fleet import HEALTHY, EvaluationData, RunSpec, RunWindows
 
@@ -50,7 +51,7 @@ class Commissioned:
     def judge(self, runs: Sequence[Sequence[WindowIndicators]], true_load: str) -> list[JudgedRun]:
         """Judge consecutive runs of the wagon, the decision state carried from one to the next
         (the windows restart at each run, as at a stop); one JudgedRun per run, times from its start."""
-        settings = replace(self.settings, load=true_load, load_model=None) if self.true_load else self.settings
+        settings = replace(self.settings, load=LoadSetting(true_load), load_model=None) if self.true_load else self.settings
         judge = WindowJudge(settings)  # one wagon running on: its decision state carries over
         out = []
         for windows in runs:

@@ -161,7 +161,7 @@ def visibility(data: EvaluationData, feature_sets: Mapping[str, Features] = FEAT
     """Per broken-coil case, per feature set: the visibility of each training fault run (module
     docstring), against its own training wagon's reference in the run's load."""
     overlap = data.settings.window_s / data.settings.hop_s
-    by_wagon: dict[tuple[int, str], dict[str, list]] = defaultdict(lambda: defaultdict(list))  # type: ignore[type-arg]
+    by_wagon: dict[tuple[int, str], dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for r in data.runs:
         if r.run.role == "train-healthy":
             by_wagon[(r.run.wagon, r.run.load)]["commissioning" if r.run.commissioning else "healthy"].append(r)

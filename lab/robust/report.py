@@ -233,7 +233,8 @@ def direction_rows(data: EvaluationData, load: str = "full") -> list[list[str]]:
     pairs = (("pitch-roll", 1, 2), ("bounce-roll", 0, 2), ("bounce-pitch", 0, 1))
     per_wagon: dict[int, list[tuple[bool, np.ndarray]]] = {}
     for r in data.select(role={"calibration", "healthy"}, load=load):
-        values = np.array([[modal_coherency(w.spectra, data.geometry)[:, i, j].real for _, i, j in pairs] for w in r.windows])
+        # Computed windows always hold their spectra (None only in records built by hand).
+        values = np.array([[modal_coherency(w.spectra, data.geometry)[:, i, j].real for _, i, j in pairs] for w in r.windows])  # type: ignore[arg-type]
         per_wagon.setdefault(r.run.wagon, []).append((r.conditions.reversed, values))  # (windows, pairs, bands)
     if not per_wagon:
         return []
@@ -293,7 +294,7 @@ def render_figures(data: EvaluationData, scores: Sequence[MethodScore], default:
 
     # 2. The default method's alarm ratio: healthy windows against the faults' windows.
     fig, ax = plt.subplots(figsize=(11, 5.5), constrained_layout=True)
-    bins = np.logspace(-2, 2, 81)
+    bins = np.logspace(-2, 2, 81).tolist()  # matplotlib's stubs take a sequence of edges
     healthy = _in_view(default.healthy_ratios)
     if healthy.size:
         ax.hist(healthy, bins=bins, density=True, histtype="stepfilled", alpha=0.35, color="0.4", label="healthy test runs")

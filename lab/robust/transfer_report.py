@@ -448,9 +448,9 @@ def _details(data: Mapping[str, EvaluationData], judgements: Sequence[Judgement]
     lines += ["", f"Trend sequences: confirmed within {TREND_HORIZON_S:g} s of running with the fault (and before the sequence ended).", ""]
     rows = []
     for j in judgements:
-        for c in j.score.sequence_cells:
-            rows.append([j.label, case_label(c.key, c.severity), f"{c.within(TREND_HORIZON_S)} of {c.sequences}", f"{c.detected} of {c.sequences}",
-                         "-" if not c.times_s else f"{c.median_time_s:.0f} s", f"{c.by_trend}", f"{c.corner_right}"])  # fmt: skip
+        for seq in j.score.sequence_cells:
+            rows.append([j.label, case_label(seq.key, seq.severity), f"{seq.within(TREND_HORIZON_S)} of {seq.sequences}", f"{seq.detected} of {seq.sequences}",
+                         "-" if not seq.times_s else f"{seq.median_time_s:.0f} s", f"{seq.by_trend}", f"{seq.corner_right}"])  # fmt: skip
     lines += _table(["judgement", "case", "within 1 h", "before the end", "median time", "by the trend", "corner right"], rows)
     lines += ["", "## Load state", ""]
     rows = []

@@ -126,8 +126,8 @@ def check_thresholds(
     for key in sorted(faulty_keys):
         for sev in sorted({r.case.severity for r in result.runs if r.group == "" and r.case.key == key}):
             mask = result.run_mask(group="", key=key, severity=sev)
-            found = list(_confirmations(result, window_s, mask, thresholds, confirm_k, confirm_n, gate).values())
-            per_case[f"{key}@{sev:g}"] = sum(c is not None for c in found) / len(found)
+            confirmed = list(_confirmations(result, window_s, mask, thresholds, confirm_k, confirm_n, gate).values())
+            per_case[f"{key}@{sev:g}"] = sum(c is not None for c in confirmed) / len(confirmed)
     broken_keys = {"type_a.full.front_outer", "type_a.full.rear_outer"} & faulty_keys
     broken_mask = result.run_mask(group="", key=broken_keys, severity=0.0)
     broken = list(_confirmations(result, window_s, broken_mask, thresholds, confirm_k, confirm_n, gate).values()) if broken_keys else []

@@ -46,7 +46,7 @@ def render_figures(result: StudyResult, out_dir: os.PathLike[str] | str) -> list
                 means.append(per_run.mean(axis=0))
                 spreads.append(per_run.std(axis=0))
             m, s = np.array(means), np.array(spreads)
-            for j, ind in enumerate(INDICATORS):
+            for j in range(len(INDICATORS)):
                 axes.flat[j].errorbar(xs, m[:, j], yerr=s[:, j], marker="o", ms=4, capsize=3, lw=1.2, label=cond.label)
         for j, ind in enumerate(INDICATORS):
             ax = axes.flat[j]

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from bogiemon.daemon.rules import Threshold
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.lab.study.defaults import (
     DecisionEvidence,
     ThresholdCheck,
@@ -67,7 +68,7 @@ def write_report(
     confirm_k: int = 3,
     confirm_n: int = 5,
     figures: bool = True,
-    configured: Mapping[str, Mapping[str, Threshold]] | None = None,
+    configured: Mapping[LoadState, Mapping[str, Threshold]] | None = None,
     min_excitation_rms_mps2: float = 0.3,
 ) -> dict[str, Any]:
     """Write README.md, defaults.md, table4.json (and the figures) into out_dir; returns the JSON.
@@ -89,7 +90,7 @@ def write_report(
     sens_fa = {s.name: rule_false_alarm(result, group=s.name) for s in result.plan.sensitivities if s.own_healthy}
     gate = min_excitation_rms_mps2
     defaults = defaults_evidence(result, confirm_k, confirm_n, gate)
-    configured_here = {load: configured[load] for load in result.plan.loads if configured and configured.get(load)}
+    configured_here = {load: configured[LoadState(load)] for load in result.plan.loads if configured and configured.get(LoadState(load))}
     shipped = {
         load: check_thresholds(result, load, result.default_window_s, t, confirm_k, confirm_n, min_excitation_rms_mps2=gate)
         for load, t in configured_here.items()

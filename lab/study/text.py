@@ -215,7 +215,7 @@ def readme_text(
         for s in ev.severities:
             out.append(f"| {key} | {s.severity:g} | " + " | ".join(f"{v:.2f}" for v in s.detection_share) + " |")
     out += ["", "## (b) Indicators against fault severity", ""]
-    for (name, key, title), path in zip([f for f in FIGURES if f"figures/{f[0]}" in figures], figures, strict=True):
+    for (_name, _key, title), path in zip([f for f in FIGURES if f"figures/{f[0]}" in figures], figures, strict=True):
         out += [f"**{title}**", "", f"![{title}]({path})", ""]
     out += [
         "Each point: the mean over runs of each run's mean indicator; bars: +/- 1 standard deviation over "
@@ -271,9 +271,9 @@ def readme_text(
             severity_sets = sorted({tuple(s.severity for s in cases[key].severities) for cases in sens.values() if key in cases})
             for sevs in severity_sets:
                 label = ", ".join(f"{v:g}" for v in sevs)
-                ev = base.get(key)
-                if ev is not None:  # the main matrix on the same severities, at the same condition
-                    ev = CaseEvidence(key, tuple(s for s in ev.severities if s.severity in sevs))
+                main = base.get(key)
+                if main is not None:  # the main matrix on the same severities, at the same condition
+                    ev = CaseEvidence(key, tuple(s for s in main.severities if s.severity in sevs))
                     out.append(f"| main ({stick / 1e6:g} MN/m, {result.plan.fault_corner.value}) | {key} | {label} | " + _share_cells(ev) + " |")
                 for name, cases in sens.items():
                     if key in cases and tuple(s.severity for s in cases[key].severities) == sevs:
@@ -509,13 +509,13 @@ def defaults_text(
         ]
     lines = []
     for load, e in defaults.chosen.items():
-        n = e.check.healthy_windows
-        independent = n * result.settings.hop_s / w0  # overlapping windows: about this many independent ones
+        n_healthy = e.check.healthy_windows
+        independent = n_healthy * result.settings.hop_s / w0  # overlapping windows: about this many independent ones
         where = ", ".join(f"{k} at {c}" for c, k in e.held_out_confirmed_by_condition.items())
         rate = (
-            f"{e.held_out_alarm_windows} of {n} healthy windows at alarm level ({_pct(e.held_out_alarm_windows / n)} per window)"
+            f"{e.held_out_alarm_windows} of {n_healthy} healthy windows at alarm level ({_pct(e.held_out_alarm_windows / n_healthy)} per window)"
             if e.held_out_alarm_windows
-            else f"none of {n} healthy windows at alarm level (about {independent:.0f} independent ones: below about "
+            else f"none of {n_healthy} healthy windows at alarm level (about {independent:.0f} independent ones: below about "
             f"{3 / independent:.0e} per window, 95 %)"
         )
         lines.append(

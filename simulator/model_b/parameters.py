@@ -164,7 +164,7 @@ def _triple(values: Any, what: str) -> tuple[float, float, float]:
     out = tuple(float(x) for x in values)
     if len(out) != 3:
         raise SimulationError(f"model B sensor: {what} needs three values (a1, a2, a3), got {len(out)}")
-    return out  # type: ignore[return-value]
+    return out
 
 
 def wagon_parameters(parameter_set: dict[str, Any], load: str) -> WagonParameters:

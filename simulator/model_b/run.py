@@ -201,7 +201,7 @@ def run_group(
             if n_out[b]:
                 pieces[b].append(out[b, : n_out[b]].copy())
         remaining -= n_out
-        for b in np.flatnonzero(until_onset > 0):
+        for b in np.flatnonzero(until_onset > 0).tolist():
             until_onset[b] -= n_out[b]
             if until_onset[b] == 0:  # the fault appears now
                 corner[b] = preps[b].model.corner_table()
@@ -257,5 +257,5 @@ def integrate(
         np.zeros((1, 3)), np.zeros((1, 3)), ident, np.zeros((1, 3, 2, 3)), np.zeros((1, 3, sensors.DELAY_LINE)),
         np.zeros(1, dtype=np.int64), record_every, out, q_out,
     )  # fmt: skip
-    times = np.arange(n_out) * step_s * record_every
+    times = (np.arange(n_out) * step_s * record_every).astype(np.float64, copy=False)
     return times, q_out[0], State(q=q[0], v=v[0], w=w[0])

@@ -131,7 +131,7 @@ def track_model(parameter_set: dict[str, Any], name: str) -> TrackModel:
 
 def _random_rails(model: TrackModel, n: int, ds_m: float, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
     n_fft = 1 << max(4, int(np.ceil(np.log2(n))))
-    freq = np.fft.rfftfreq(n_fft, d=ds_m)
+    freq = np.fft.rfftfreq(n_fft, d=ds_m).astype(np.float64, copy=False)
     dn = freq[1]
     s = model.rail_psd(freq)
     s[freq > 1.0 / model.shortest_wavelength_m] = 0.0

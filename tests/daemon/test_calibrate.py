@@ -22,7 +22,7 @@ CONFIG = load_config(None)
 
 
 @pytest.fixture(scope="module")
-def recordings(tmp_path_factory) -> dict[str, list[Path]]:  # type: ignore[no-untyped-def]
+def recordings(tmp_path_factory) -> dict[str, list[Path]]:
     folder = tmp_path_factory.mktemp("healthy")
     out: dict[str, list[Path]] = {"full": [], "tare": []}
     for load in out:
@@ -33,7 +33,7 @@ def recordings(tmp_path_factory) -> dict[str, list[Path]]:  # type: ignore[no-un
     return out
 
 
-def judged_windows(paths: list[Path]) -> list:  # type: ignore[type-arg]
+def judged_windows(paths: list[Path]) -> list:
     health, geometry = CONFIG.health_settings(), CONFIG.bogie_geometry()
     out = []
     for path in paths:
@@ -43,12 +43,14 @@ def judged_windows(paths: list[Path]) -> list:  # type: ignore[type-arg]
     return out
 
 
-def test_the_fused_center_is_the_mean_coupling_vector_and_the_thresholds_center_the_median(recordings) -> None:  # type: ignore[no-untyped-def]
+def test_the_fused_center_is_the_mean_coupling_vector_and_the_thresholds_center_the_median(recordings) -> None:
     result = calibrate(recordings["full"], CONFIG, "full")
     (full,) = result.loads
     windows = judged_windows(recordings["full"])
     assert full.n_judged == len(windows) >= MIN_WINDOWS
-    want = np.mean([coupling_features(w, CONFIG.bogie_geometry()) for w in windows], axis=0)
+    features = [f for w in windows if (f := coupling_features(w, CONFIG.bogie_geometry())) is not None]
+    assert len(features) == len(windows)
+    want = np.mean(features, axis=0)
     assert full.fused is not None
     np.testing.assert_allclose(full.fused.center, want, rtol=1e-12)
     assert full.fused.level_factor >= 1.0
@@ -58,14 +60,14 @@ def test_the_fused_center_is_the_mean_coupling_vector_and_the_thresholds_center_
         assert ind.threshold.alarm >= 1.1 * ind.max_deviation
 
 
-def test_auto_calibrates_each_load_state_from_its_own_windows(recordings) -> None:  # type: ignore[no-untyped-def]
+def test_auto_calibrates_each_load_state_from_its_own_windows(recordings) -> None:
     result = calibrate(recordings["full"] + recordings["tare"], CONFIG, "auto")
     assert [c.load for c in result.loads] == ["full", "tare"]
     for c in result.loads:
         assert c.n_judged == len(judged_windows(recordings[c.load]))
 
 
-def test_the_cli_writes_a_fragment_the_daemon_reads(recordings, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_the_cli_writes_a_fragment_the_daemon_reads(recordings, tmp_path: Path, capsys) -> None:
     fragment = tmp_path / "calibration.toml"
     files = [str(p) for p in recordings["full"] + recordings["tare"]]
     assert main(["calibrate", *files, "--load", "auto", "-o", str(fragment)]) == 0
@@ -76,14 +78,14 @@ def test_the_cli_writes_a_fragment_the_daemon_reads(recordings, tmp_path: Path, 
     expected = calibrate(recordings["full"] + recordings["tare"], CONFIG, "auto")
     for c in expected.loads:
         assert c.fused is not None
-        np.testing.assert_allclose(config.decision.fused[c.load].center, c.fused.center, rtol=1e-9)  # type: ignore[index]
-        assert config.decision.fused[c.load].trend_alarm == pytest.approx(c.fused.levels.trend_alarm)  # type: ignore[index]
+        np.testing.assert_allclose(config.decision.fused[c.load].center, c.fused.center, rtol=1e-9)
+        assert config.decision.fused[c.load].trend_alarm == pytest.approx(c.fused.levels.trend_alarm)
     baselines = config.fused_baselines()
     assert {b.name for b in baselines.values()} == {"calibrated"}
     assert main(["check-config", str(site)]) == 0
 
 
-def test_too_short_a_recording_is_one_clear_error(recordings, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_too_short_a_recording_is_one_clear_error(recordings, tmp_path: Path, capsys) -> None:
     with pytest.raises(CalibrationError, match="calibration needs at least 30"):
         calibrate(recordings["full"][:1], CONFIG, "full")
     assert main(["calibrate", str(recordings["full"][0]), "--load", "full", "-o", str(tmp_path / "x.toml")]) == 2

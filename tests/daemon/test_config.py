@@ -7,6 +7,7 @@ import pytest
 
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, default_config_text, load_config, parse_config
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
 
 
@@ -114,9 +115,9 @@ def test_an_included_fragment_is_merged_over_the_file(tmp_path: Path) -> None:
     (tmp_path / "main.toml").write_text('include = ["thresholds.toml"]\n[processing]\nhop_s = 20.0\n[decision]\nmethod = "thresholds"\n')
     config = load_config(tmp_path / "main.toml")
     assert config.processing.hop_s == 20.0
-    assert set(config.decision.thresholds["full"]) == {"i4_norm"}  # the named load state is replaced
-    assert config.decision.thresholds["full"]["i4_norm"].alarm == 0.4
-    assert config.decision.thresholds["tare"] == BogiemonConfig().decision.thresholds["tare"]
+    assert set(config.decision.thresholds[LoadState.FULL]) == {"i4_norm"}  # the named load state is replaced
+    assert config.decision.thresholds[LoadState.FULL]["i4_norm"].alarm == 0.4
+    assert config.decision.thresholds[LoadState.TARE] == BogiemonConfig().decision.thresholds[LoadState.TARE]
 
 
 def test_a_missing_include_is_named(tmp_path: Path) -> None:

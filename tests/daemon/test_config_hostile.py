@@ -260,11 +260,15 @@ def mutated_configs(draw: st.DrawFn) -> str:
         for key in path[:-1]:
             table = table[key]
         old = table[path[-1]]
-        nearby = st.nothing()
+        nearby: st.SearchStrategy[Any] = st.nothing()
         if isinstance(old, bool):
             nearby = st.just(not old)
         elif isinstance(old, int | float):
-            nearby = st.sampled_from([0.001, 0.1, 0.5, 1.5, 2.0, 3.0, 7.0, 1000.0, 1e6, -1.0]).map(lambda f, v=old: type(v)(v * f))
+
+            def scaled(f: float, v: float = old) -> float:
+                return type(v)(v * f)
+
+            nearby = st.sampled_from([0.001, 0.1, 0.5, 1.5, 2.0, 3.0, 7.0, 1000.0, 1e6, -1.0]).map(scaled)
         table[path[-1]] = draw(st.one_of(st.sampled_from(HOSTILE), nearby, st.floats(), st.integers(), st.text(max_size=4)))
     return tomlout.dumps(data)
 

@@ -14,7 +14,7 @@ GEOMETRY = BogieGeometry()
 HOP_S = 10.0
 QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
 SETTINGS = DecisionSettings(
-    thresholds={"full": {"i4_norm": Threshold(warning=0.1, alarm=0.2, center=0.05)}},
+    thresholds={LoadState.FULL: {"i4_norm": Threshold(warning=0.1, alarm=0.2, center=0.05)}},
     confirm_k=3,
     confirm_n=5,
     clear_after_windows=2,
@@ -141,4 +141,4 @@ def test_settings_reject_k_above_n_and_unknown_indicators() -> None:
     with pytest.raises(ValueError, match="confirm_k"):
         dataclasses.replace(SETTINGS, confirm_k=6)
     with pytest.raises(ValueError, match="unknown indicators"):
-        DecisionSettings(thresholds={"full": {"i5": Threshold(0.1, 0.2)}})
+        DecisionSettings(thresholds={LoadState.FULL: {"i5": Threshold(0.1, 0.2)}})

@@ -261,7 +261,7 @@ def test_roll_is_read_with_the_sign_of_the_left_rail_whatever_the_layout() -> No
 
 
 @pytest.fixture(scope="module")
-def commissioned():  # type: ignore[no-untyped-def]
+def commissioned():
     """The default config commissioned at full load on four healthy 450 s runs of the nominal wagon."""
     from bogiemon.daemon.calibrate import calibrate_windows, fragment
     from bogiemon.daemon.config import BogiemonConfig
@@ -282,7 +282,7 @@ def commissioned():  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.slow
-def test_a_simulated_broken_rear_coil_is_named_at_its_corner_or_unknown(commissioned) -> None:  # type: ignore[no-untyped-def]
+def test_a_simulated_broken_rear_coil_is_named_at_its_corner_or_unknown(commissioned) -> None:
     from bogiemon.daemon.verdict import WindowJudge
     from bogiemon.detection import IndicatorStream
     from bogiemon.simulator import Fault, Scenario, SpeedProfile, simulate_batch

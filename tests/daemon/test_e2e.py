@@ -11,6 +11,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from typing import Any
 from importlib import resources
 from pathlib import Path
 
@@ -106,7 +107,7 @@ def logged_events(stdout: str) -> list[dict]:
 # CPU on a busy machine (the tests run side by side) lags and catches up instead of dropping
 # samples; at 60 times real time with the default 60 s ring (1 s of wall time) it dropped, and the
 # 120 s windows were never filled.
-LIVE_RUN = {"duration_s": 180.0, "rate": 10.0, "extra": "[pipeline]\nring_capacity_s = 600.0\n"}
+LIVE_RUN: dict[str, Any] = {"duration_s": 180.0, "rate": 10.0, "extra": "[pipeline]\nring_capacity_s = 600.0\n"}
 
 
 def stopped_counters(stdout: str) -> dict:

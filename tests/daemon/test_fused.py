@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import pytest
@@ -49,7 +51,7 @@ def settings(baseline: Baseline = BASELINE) -> DecisionSettings:
     return DecisionSettings({}, confirm_k=3, confirm_n=5, clear_after_windows=2, method=Method.FUSED, baselines={LoadState.FULL: baseline})
 
 
-def feed(decider: Decider, xs: list[np.ndarray]) -> list[tuple[int, EventKind, dict]]:
+def feed(decider: Decider, xs: list[np.ndarray]) -> list[tuple[int, EventKind, Mapping[str, Any]]]:
     out = []
     for i, x in enumerate(xs):
         _, events = decider.update(window(x, HOP_S * i), LoadState.FULL)
@@ -68,6 +70,7 @@ def test_the_window_score_is_the_squared_whitened_shift() -> None:
     judgement = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S).judge(window(x), LoadState.FULL)
     assert judgement.values[FUSED_SCORE] == pytest.approx(100 * (0.5**2 + 0.4**2))  # 41
     assert judgement.levels[FUSED_SCORE] is Level.ALARM
+    assert judgement.shift is not None
     np.testing.assert_allclose(judgement.shift, 10 * x, atol=1e-9)
     assert judgement.alarm_ratio == pytest.approx(41.0 / 40.0)
     x[0] = 0.3  # 25: between the warning and the alarm level

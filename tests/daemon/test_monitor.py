@@ -10,6 +10,7 @@ from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.sinks import EventSink, MemorySink
 from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.vocabulary import LoadState
 from tests.daemon.synthetic import as_blocks, bogie_accel, short_windows_config
 
 CONFIG = parse_config(short_windows_config(clear_after_windows=2), "test")
@@ -84,6 +85,7 @@ def test_alarm_state_survives_a_restart(tmp_path: Path) -> None:
     first = make_monitor(tmp_path)
     feed_all(first, as_blocks(bogie_accel(30, seed=2, pitch_roll_coupling=1.0)))
     assert first.mode == "confirmed"
+    assert isinstance(first.store, EventStore)
     first.store.close()
     sink = MemorySink()
     second = make_monitor(tmp_path, [sink])
@@ -92,9 +94,9 @@ def test_alarm_state_survives_a_restart(tmp_path: Path) -> None:
     assert kinds(sink.events) == []  # still the same alarm: no second CONFIRMED
 
 
-@pytest.mark.parametrize("load", ["full", "tare"])
-def test_the_load_state_picks_its_thresholds(tmp_path: Path, load: str) -> None:
+@pytest.mark.parametrize("load", [LoadState.FULL, LoadState.TARE])
+def test_the_load_state_picks_its_thresholds(tmp_path: Path, load: LoadState) -> None:
     monitor = Monitor(CONFIG.monitor_settings(load=load), EventStore(tmp_path))
     feed_all(monitor, as_blocks(bogie_accel(10, seed=9)))
     assert set(monitor.latest.judgement.values) == set(CONFIG.decision.thresholds[load])
-    assert CONFIG.decision.thresholds["full"] != CONFIG.decision.thresholds["tare"]
+    assert CONFIG.decision.thresholds[LoadState.FULL] != CONFIG.decision.thresholds[LoadState.TARE]

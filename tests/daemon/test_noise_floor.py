@@ -55,14 +55,18 @@ def test_the_floor_is_the_smallest_unexplained_density_over_the_bands(seed: int)
     matrix = h @ np.conj(np.transpose(h, (0, 2, 1))) * rng.uniform(0.01, 10.0, size=(N_BANDS, 1, 1))
     widths = np.diff(BANDS_HZ)
     expected = [min(schur_reference(matrix[b], c) / widths[b] for b in range(N_BANDS)) for c in range(3)]
-    np.testing.assert_allclose(noise_floors(matrix, BANDS_HZ), expected, rtol=1e-9)
+    floors = noise_floors(matrix, BANDS_HZ)
+    assert floors is not None
+    np.testing.assert_allclose(floors, expected, rtol=1e-9)
 
 
 def test_bands_without_power_are_skipped_and_none_left_is_no_floor() -> None:
     matrix = np.zeros((N_BANDS, 3, 3), dtype=np.complex128)
     assert noise_floors(matrix, BANDS_HZ) is None
     matrix[2] = np.diag([1.0, 2.0, 4.0])
-    np.testing.assert_allclose(noise_floors(matrix, BANDS_HZ), np.array([1.0, 2.0, 4.0]) / (BANDS_HZ[3] - BANDS_HZ[2]))
+    floors = noise_floors(matrix, BANDS_HZ)
+    assert floors is not None
+    np.testing.assert_allclose(floors, np.array([1.0, 2.0, 4.0]) / (BANDS_HZ[3] - BANDS_HZ[2]))
 
 
 def test_white_noise_lifts_a_sensors_floor_to_its_density_and_leaves_the_others() -> None:

@@ -317,7 +317,7 @@ def test_the_service_records_nothing_when_the_recorder_is_not_enabled(tmp_path: 
     assert service.recorder is None
 
 
-def test_a_reload_that_changes_the_recorder_section_records_into_the_new_folder(tmp_path: Path, own_signal_handlers: None) -> None:
+def test_a_reload_that_changes_the_recorder_section_records_into_the_new_folder(tmp_path: Path, own_signal_handlers: None) -> None:  # noqa: F811 - the fixture imported above
     path = tmp_path / "bogiemon.toml"
     base = short_windows_config(state_dir=tmp_path / "state") + "[recorder]\nenabled = true\n"
     path.write_text(base + f'directory = "{tmp_path / "old"}"\n')

@@ -147,8 +147,9 @@ class SerialRun:
     def __init__(self, config: BogiemonConfig, write: FreeAfterEachWrite | None = None) -> None:
         self.recorder = Recorder(settings_of(config), write=write)
         assert self.recorder.ready.wait(10)
+        self.store = EventStore(config.state.directory)
         self.monitor = Monitor(
-            config.monitor_settings(), EventStore(config.state.directory), observers=[self.recorder.on_window], taps=[self.recorder.on_block]
+            config.monitor_settings(), self.store, observers=[self.recorder.on_window], taps=[self.recorder.on_block]
         )
         self.events: list[Event] = []
 
@@ -162,7 +163,7 @@ class SerialRun:
 
     def close(self) -> None:
         self.recorder.close()
-        self.monitor.store.close()
+        self.store.close()
 
     def kinds(self) -> list[str]:
         return [e.kind.value for e in self.events]
@@ -222,12 +223,13 @@ def test_the_bound_of_a_default_snapshot_is_about_three_times_what_a_bogies_samp
 
 def real_bodies(tmp_path: Path) -> tuple[Event, dict, str]:
     """A CONFIRMED, the state committed with it and a status message, as a monitor makes them."""
-    monitor = Monitor(parse_config(short_windows_config(), "t").monitor_settings(), EventStore(tmp_path / "bodies"))
+    store = EventStore(tmp_path / "bodies")
+    monitor = Monitor(parse_config(short_windows_config(), "t").monitor_settings(), store)
     events = [e for b in as_blocks(bogie_accel(20, 3, pitch_roll_coupling=1.0)) for e in monitor.feed(b)]
     confirmed = next(e for e in events if e.kind is EventKind.CONFIRMED)
-    status = encode_status(status_from_monitor(monitor, "wagon-2026-0042", 1.8e9, monitor.store.outbox.counts()))
+    status = encode_status(status_from_monitor(monitor, "wagon-2026-0042", 1.8e9, store.outbox.counts()))
     state = {STATE_KEY: monitor.state_dict()}
-    monitor.store.close()
+    store.close()
     return confirmed, state, status
 
 

@@ -17,6 +17,7 @@ from bogiemon.daemon.service import Service
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.daemon.sources import open_source
 from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.drivers.candb import load_layout
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import RecordingError, write_csv_recording
@@ -102,7 +103,7 @@ def test_replay_honours_the_per_node_layout_of_source_like_run(tmp_path: Path, f
     log = tmp_path / "nodes.log"
     write_can_log(log, load_layout(None, "per-node"), faulty_then_healthy, FS_HZ, start_s=1.7e9)
     (tmp_path / "cfg.toml").write_text(per_node_config(tmp_path, log))
-    run_sink, run_windows = MemorySink(), []
+    run_sink, run_windows = MemorySink(), list[WindowVerdict]()
     service = Service(tmp_path / "cfg.toml", open_source, sinks=[run_sink], observers=[run_windows.append])
     assert service.run() == 0
     replay_sink = MemorySink()

@@ -35,6 +35,7 @@ def test_blocks_come_out_as_they_went_in_across_the_wrap(sizes: list[int], capac
             out = ring.get(timeout_s=0)
         except RingClosed:
             break
+        assert out is not None
         got.append(out)
     assert len(got) == len(sent) == ring.counters.blocks_out
     for a, b in zip(got, sent, strict=True):

@@ -90,7 +90,7 @@ def test_first_confirmation_of_a_run_is_where_the_deciders_state_machine_confirm
     n = k + extra
     # The Decider also clears its history after clear_after_windows clean windows; with
     # clear_after_windows >= n (the defaults: 6 and 5) that never drops an alarm still in the last n.
-    decision = DecisionSettings({"full": {"i4_norm": Threshold(warning=0.5, alarm=0.5)}}, k, n, clear_after_windows=n)
+    decision = DecisionSettings({LoadState.FULL: {"i4_norm": Threshold(warning=0.5, alarm=0.5)}}, k, n, clear_after_windows=n)
     decider = Decider(decision, "test", geometry=BogieGeometry(), hop_s=10.0)
     confirmed_at = None
     for i, alarm in enumerate(alarms):

@@ -19,6 +19,7 @@ from bogiemon.daemon.structure import learn_structure
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.verdict import MonitorSettings, WindowJudge, WindowVerdict
 from bogiemon.daemon.store import EventStore
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.detection import IndicatorStream, WindowIndicators
 from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.drivers.base import Block
@@ -107,7 +108,7 @@ def test_the_damaged_runs_would_have_looked_like_faults_if_judged(healthy_run, t
     """The point of the health check: the frozen channel's coupling exceeds the alarm level."""
     monitor, _ = feed(flat(healthy_run), tmp_path)
     decision = BogiemonConfig().monitor_settings().decision
-    thresholds = decision.thresholds["full"]
+    thresholds = decision.thresholds[LoadState.FULL]
     window = monitor.latest.window
     assert any(abs(getattr(window, name) - t.center) >= t.alarm for name, t in thresholds.items())
 

@@ -87,7 +87,7 @@ class Feed:
 class FeedSource(Source):
     finite = True
 
-    def __init__(self, feed: Feed) -> None:
+    def __init__(self, feed: "Feed | ReloadingFeed") -> None:
         self.fs_hz = FS_HZ
         self.counters = HealthCounters()
         self.feed = feed

@@ -93,7 +93,7 @@ def disk(tmp_path: Path) -> Iterator[Disk]:
 class Recorder(EventSink):
     """A sink that records what it was given, and may act on the storage after the n-th event."""
 
-    def __init__(self, after_n: int = 0, action: Callable[[], None] | None = None) -> None:
+    def __init__(self, after_n: int = 0, action: Callable[[], object] | None = None) -> None:
         self.events: list[Event] = []
         self._after_n = after_n
         self._action = action

@@ -248,4 +248,4 @@ def test_settings_that_build_always_run_the_core_to_finite_indicators(
 @pytest.mark.parametrize("name", ["window_s", "hop_s", "max_lag_s"])
 def test_a_duration_of_more_samples_than_a_float_holds_is_a_value_error_not_an_overflow(name: str) -> None:
     with pytest.raises(ValueError, match=rf"{name} \(3.6e\+305 s\) is inf samples at 500 Hz, more than the"):
-        ProcessingSettings(**{name: 3.6e305})
+        ProcessingSettings(**{name: 3.6e305})  # type: ignore[arg-type]  # one float field, named by the parameter

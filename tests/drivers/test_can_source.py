@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bogiemon.drivers.base import HealthCounters, SensorStatus
+from bogiemon.drivers.base import Block, HealthCounters, SensorStatus
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.can_frames import CAN_ERR_BUSOFF, CAN_ERR_CRTL, BusFrameReader, SocketFrameReader
 from bogiemon.drivers.can_source import BusPort, CanBusPort, CanSource, set_receive_buffer, socket_drops
@@ -28,7 +28,6 @@ from tests.drivers.frames import (
     DatagramCanBus,
     channel_name,
     check_blocks,
-    coded_accel,
     layout_frames,
     send_frames,
     stamped_sender,
@@ -330,7 +329,7 @@ def test_kernel_drops_are_read_from_the_socket(tmp_path) -> None:
         assert socket_drops(receiver) == 0
         for _ in range(2000):
             sender.sendto(b"x" * 64, receiver.getsockname())
-        assert socket_drops(receiver) > 0
+        assert (socket_drops(receiver) or 0) > 0
     finally:
         receiver.close()
         sender.close()
@@ -358,6 +357,7 @@ def test_a_socketcan_port_sizes_its_buses_socket_buffer_and_reads_its_drops(monk
     monkeypatch.setattr(can.interfaces.socketcan, "SocketcanBus", SocketBus)
     port = CanBusPort("socketcan", "can7", receive_buffer_bytes=8192)
     bus = port.open()
+    assert isinstance(bus, SocketBus)
     try:
         assert port.description == "SocketCAN interface 'can7'"
         assert port.effective_receive_buffer_bytes == bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= 8192
@@ -433,6 +433,7 @@ def test_a_reader_holds_a_blocks_frames_up_to_1024_and_a_larger_block_is_gathere
             block = source.read(0.5)
         finally:
             sender.shutdown()
+    assert block is not None
     (segment,) = check_blocks([block])
     np.testing.assert_array_equal(segment, np.arange(600))  # one block, gathered 1024 frames at a time
 
@@ -537,7 +538,8 @@ def read_scheduled(frames: list[can.Message], coalesce_s: float, n: int) -> tupl
     """Read n samples through a source on a scheduled bus; (blocks, the bus, the clock as each block left)."""
     bus = ScheduledBus(frames, t0_s=1000.0)
     source = CanSource(ScheduledPort(bus), HUB, FS_HZ, coalesce_s=coalesce_s, clock=bus.clock, sleep=bus.sleep)
-    blocks, returned_at_s = [], []
+    blocks: list[Block] = []
+    returned_at_s: list[float] = []
     while sum(b.n_samples for b in blocks) < n and bus.now_s < 60.0:
         block = source.read(0.5)
         if block is not None:

@@ -1,6 +1,7 @@
 """The DBC layouts: compiled batch codec against cantools frame by frame, and clear DBC errors."""
 
 from pathlib import Path
+from typing import Any
 
 import cantools
 import numpy as np
@@ -14,8 +15,13 @@ from bogiemon.drivers.candb import DbcError, compile_message, load_layout, shipp
 SHIPPED = cantools.database.load_string(shipped_dbc_text(), database_format="dbc")
 
 
-def cantools_rows(message: Message, data: np.ndarray) -> list[dict[str, float]]:
-    return [message.decode(bytes(row), decode_choices=False) for row in data]
+def cantools_rows(message: Message, data: np.ndarray) -> list[dict[str, Any]]:
+    rows = []
+    for row in data:
+        decoded = message.decode(bytes(row), decode_choices=False)
+        assert isinstance(decoded, dict)  # a plain message, never a container's parts
+        rows.append(decoded)
+    return rows
 
 
 @pytest.mark.parametrize("name", ["SensorHub", "SensorNode1", "SensorNode3", "Sync"])

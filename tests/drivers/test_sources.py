@@ -37,6 +37,7 @@ def test_the_default_source_is_socketcan_on_can0_with_the_shipped_hub_layout() -
 def test_a_virtual_per_node_can_source_from_the_config() -> None:
     config = parse_config('[source]\ninterface = "virtual"\nchannel = "cfg-test"\nlayout = "per-node"\nmax_block_s = 0.2\n', "t")
     with open_source(config) as source:
+        assert isinstance(source, CanSource)
         assert isinstance(source.port, CanBusPort) and (source.port.kind, source.port.channel) == ("virtual", "cfg-test")
         assert source.connected
         assert source.layout.name == "per-node" and source.max_block_n == 100

@@ -18,7 +18,7 @@ from bogiemon.fleet.layout import scan_fleet
 from tests.fleet import tree
 
 
-def _task(root: Path, out: Path):  # type: ignore[no-untyped-def]
+def _task(root: Path, out: Path):
     (task,) = day_tasks(scan_fleet(root), out)
     return task
 

@@ -10,7 +10,7 @@ import pyarrow as pa
 from bogiemon.daemon.config import load_config
 from bogiemon.daemon.vocabulary import Mode
 from bogiemon.fleet.evidence import MIN_SPREAD, STANDS_OUT, fleet_relative, robust_distance
-from bogiemon.fleet.judge import SERIES_SCHEMA, WagonJudged
+from bogiemon.fleet.judge import SERIES_SCHEMA, MeanEvidence, WagonJudged
 from bogiemon.fleet.layout import Fleet, Wagon
 
 
@@ -24,7 +24,7 @@ def test_robust_distance_is_the_rms_of_robust_z_scores() -> None:
 
 
 def _judged(wagon_id: str, vector: np.ndarray) -> WagonJudged:
-    ev = {"full": {"first_day": list(vector), "last_day": list(vector), "first_day_windows": 100, "last_day_windows": 100}}
+    ev: dict[str, MeanEvidence] = {"full": {"first_day": list(vector), "last_day": list(vector), "first_day_windows": 100, "last_day_windows": 100}}
     return WagonJudged(
         wagon_id=wagon_id,
         events=(),

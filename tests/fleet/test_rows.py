@@ -14,14 +14,14 @@ from bogiemon.drivers.base import SensorStatus
 from bogiemon.fleet import rows
 
 
-def _windows(seed: int, n: int = 6):  # type: ignore[no-untyped-def]
+def _windows(seed: int, n: int = 6):
     settings = ProcessingSettings(fs_hz=200.0, window_s=8.0, hop_s=2.0, max_lag_s=1.0, lowpass_hz=10.0)
     rng = np.random.default_rng(seed)
     samples = rng.normal(0.0, 1.0, (int((8.0 + 2.0 * (n - 1)) * 200), 3)) + 9.81
     return IndicatorStream(settings, BogieGeometry(), 1.79e9).process(samples)
 
 
-def _table(windows):  # type: ignore[no-untyped-def]
+def _table(windows):
     n = len(windows)
     ok, fault = SensorStatus.OK, SensorStatus.SENSOR_FAULT
     return rows.to_table(windows, ["r.csv"] * n, [0] * n, [(ok, fault, ok)] * n)

@@ -17,8 +17,8 @@ LEFT_PX, RIGHT_PX = 58.0, 986.0
 MAX_IDLE_S, GAP_PX = 600.0, 24.0
 
 
-def _utc(*args: int) -> float:
-    return datetime(*args, tzinfo=UTC).timestamp()
+def _utc(year: int, month: int, day: int, hour: int = 0, minute: int = 0) -> float:
+    return datetime(year, month, day, hour, minute, tzinfo=UTC).timestamp()
 
 
 def reference_axis(times: list[float], left_px: float, right_px: float, max_idle_s: float, gap_px: float, share: float = 1 / 3, min_span_s: float = 60.0):

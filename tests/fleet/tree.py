@@ -44,7 +44,7 @@ def simulate_runs(folder: Path, duration_s: float = 300.0) -> Runs:
 
 def place(run: Path, wagon_dir: Path, date: str, hhmm: str, suffix: str = ".csv.gz") -> Path:
     """Copy a run into wagon_dir/date/, its times moved to Unix time at that UTC day and time."""
-    day = dt.datetime.strptime(f"{date} {hhmm}", "%Y-%m-%d %H:%M").replace(tzinfo=dt.timezone.utc).timestamp()
+    day = dt.datetime.strptime(f"{date} {hhmm}", "%Y-%m-%d %H:%M").replace(tzinfo=dt.UTC).timestamp()
     recording = read_csv_recording(run)
     out = wagon_dir / date / f"{hhmm.replace(':', '')}00_{run.stem}{suffix}"
     out.parent.mkdir(parents=True, exist_ok=True)

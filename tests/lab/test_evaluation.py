@@ -114,7 +114,7 @@ def test_a_sequence_counts_running_time_from_the_onset_across_its_runs() -> None
 
 
 @pytest.fixture(scope="module")
-def tiny():  # type: ignore[no-untyped-def]
+def tiny():
     """A tiny plan: one wagon, one load, one corner; the shipped models (no fitting here)."""
     plan = EvaluationPlan(
         name="tiny", n_wagons=1, n_training_wagons=1, calibration_runs=1, calibration_s=450.0, healthy_runs=2, healthy_s=300.0,
@@ -125,7 +125,7 @@ def tiny():  # type: ignore[no-untyped-def]
     return simulate_plan(plan, CONFIG.processing_settings(), CONFIG.bogie_geometry(), roles=roles)
 
 
-def test_the_sequences_group_the_healthy_runs_and_each_trend_sequence(tiny) -> None:  # type: ignore[no-untyped-def]
+def test_the_sequences_group_the_healthy_runs_and_each_trend_sequence(tiny) -> None:
     groups = sequences(tiny, 0)
     healthy = [g for g in groups if g[0].run.role == "healthy"]
     assert len(healthy) == 1 and [r.run.number for r in healthy[0]] == [0, 1]
@@ -134,7 +134,7 @@ def test_the_sequences_group_the_healthy_runs_and_each_trend_sequence(tiny) -> N
     assert all(len(g) == 1 for g in groups if g[0].run.role in ("fault", "sensor"))
 
 
-def test_a_cached_simulation_is_reused_and_one_from_an_older_bogiemon_refused(tiny, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_a_cached_simulation_is_reused_and_one_from_an_older_bogiemon_refused(tiny, tmp_path) -> None:
     path = tmp_path / "data.pkl"
     path.write_bytes(pickle.dumps(tiny))
     reused = load_or_simulate(tiny.plan, CONFIG, path, None)
@@ -149,7 +149,7 @@ def test_a_cached_simulation_is_reused_and_one_from_an_older_bogiemon_refused(ti
         load_or_simulate(tiny.plan, CONFIG, path, None)
 
 
-def test_every_method_is_judged_and_the_report_is_written(tiny, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_every_method_is_judged_and_the_report_is_written(tiny, tmp_path) -> None:
     scores = []
     methods = daemon_methods(tiny, CONFIG, paper=False)
     for method in methods:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import hashlib
+import itertools
 import json
 import re
 import tomllib
@@ -37,13 +38,13 @@ def tree(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, FleetTruth, li
 
 
 @pytest.fixture(scope="module")
-def recordings(tree) -> dict[str, Recording]:  # type: ignore[no-untyped-def]
+def recordings(tree) -> dict[str, Recording]:
     """Every recording of the tree, by its path relative to the root, as the back office reads it."""
     root, _, _ = tree
     return {p.relative_to(root).as_posix(): read_csv_recording(p) for p in sorted(root.glob("*/*/*.csv.gz"))}
 
 
-def truth_json(root: Path) -> dict:  # type: ignore[type-arg]
+def truth_json(root: Path) -> dict:
     return json.loads((root / "truth.json").read_text(encoding="utf-8"))
 
 
@@ -94,7 +95,7 @@ def test_a_fault_changes_nothing_else_of_the_runs_conditions() -> None:
         ({"loads": ("full", "empty", "tare")}, "loads must name 'full' or 'tare'"),
     ],
 )
-def test_a_plan_that_cannot_be_simulated_is_refused_naming_why(change: dict, words: str) -> None:  # type: ignore[type-arg]
+def test_a_plan_that_cannot_be_simulated_is_refused_naming_why(change: dict, words: str) -> None:
     with pytest.raises(FleetSimError, match=re.escape(words)):
         dataclasses.replace(PLAN, **change)
 
@@ -107,7 +108,7 @@ def test_a_plan_that_cannot_be_simulated_is_refused_naming_why(change: dict, wor
         ((0, 1, "type_a.full.rear_outer", 0.0, "middle-left"), "unknown corner 'middle-left'"),
     ],
 )
-def test_a_fault_that_is_no_case_of_the_papers_tables_is_refused(args: tuple, words: str) -> None:  # type: ignore[type-arg]
+def test_a_fault_that_is_no_case_of_the_papers_tables_is_refused(args: tuple, words: str) -> None:
     with pytest.raises(FleetSimError, match=re.escape(words)):
         FaultOnset(*args)
 
@@ -131,7 +132,7 @@ def test_a_folder_that_is_not_empty_is_refused_and_left_as_it_was(tmp_path: Path
 # ---- the tree
 
 
-def test_the_top_of_the_tree_holds_fleet_toml_truth_json_and_one_folder_per_wagon(tree) -> None:  # type: ignore[no-untyped-def]
+def test_the_top_of_the_tree_holds_fleet_toml_truth_json_and_one_folder_per_wagon(tree) -> None:
     root, _, _ = tree
     ids = [PLAN.wagon_id(w) for w in range(PLAN.n_wagons)]
     assert ids == ["31-80-4557-001", "31-80-4557-002", "31-80-4557-003"]
@@ -139,14 +140,14 @@ def test_the_top_of_the_tree_holds_fleet_toml_truth_json_and_one_folder_per_wago
     assert sorted(p.name for p in root.iterdir()) == sorted([*ids, "fleet.toml", "truth.json"])
 
 
-def test_fleet_toml_names_the_fleet_and_lists_every_wagon_with_its_type(tree) -> None:  # type: ignore[no-untyped-def]
+def test_fleet_toml_names_the_fleet_and_lists_every_wagon_with_its_type(tree) -> None:
     root, _, _ = tree
     fleet = tomllib.loads((root / "fleet.toml").read_text(encoding="utf-8"))
     assert fleet["fleet"] == {"name": PLAN.name, "default_type": "Sgns-Y25"}
     assert fleet["wagons"] == {PLAN.wagon_id(w): {"type": "Sgns-Y25"} for w in range(PLAN.n_wagons)}
 
 
-def test_every_wagon_has_a_config_load_config_accepts_and_no_calibration(tree) -> None:  # type: ignore[no-untyped-def]
+def test_every_wagon_has_a_config_load_config_accepts_and_no_calibration(tree) -> None:
     root, _, _ = tree
     for w in range(PLAN.n_wagons):
         folder = root / PLAN.wagon_id(w)
@@ -156,7 +157,7 @@ def test_every_wagon_has_a_config_load_config_accepts_and_no_calibration(tree) -
         assert not (folder / "calibration.toml").exists()
 
 
-def test_day_folders_are_the_plans_dates_each_holding_its_runs(tree) -> None:  # type: ignore[no-untyped-def]
+def test_day_folders_are_the_plans_dates_each_holding_its_runs(tree) -> None:
     root, _, _ = tree
     for w in range(PLAN.n_wagons):
         days = sorted(p for p in (root / PLAN.wagon_id(w)).iterdir() if p.is_dir())
@@ -167,7 +168,7 @@ def test_day_folders_are_the_plans_dates_each_holding_its_runs(tree) -> None:  #
         ]
 
 
-def test_recordings_are_gzip_without_a_time_stamp(tree) -> None:  # type: ignore[no-untyped-def]
+def test_recordings_are_gzip_without_a_time_stamp(tree) -> None:
     root, _, _ = tree
     paths = list(root.glob("*/*/*.csv.gz"))
     assert len(paths) == 15
@@ -176,14 +177,14 @@ def test_recordings_are_gzip_without_a_time_stamp(tree) -> None:  # type: ignore
         assert head[:2] == b"\x1f\x8b" and head[4:8] == b"\0\0\0\0"
 
 
-def test_every_recording_reads_back_at_the_plans_rate_and_length(recordings) -> None:  # type: ignore[no-untyped-def]
+def test_every_recording_reads_back_at_the_plans_rate_and_length(recordings) -> None:
     assert len(recordings) == 15
     for rec in recordings.values():
         assert rec.n_samples == int(PLAN.run_s * PLAN.fs_hz)
         assert rec.fs_hz == pytest.approx(PLAN.fs_hz, rel=1e-9)
 
 
-def test_recording_times_are_unix_seconds_within_their_day_folders_date_at_the_planned_start(recordings, tree) -> None:  # type: ignore[no-untyped-def]
+def test_recording_times_are_unix_seconds_within_their_day_folders_date_at_the_planned_start(recordings, tree) -> None:
     _, truth, _ = tree
     starts = {r.file: r.start_s for w in truth.wagons for r in w.runs}
     for name, rec in recordings.items():
@@ -194,34 +195,34 @@ def test_recording_times_are_unix_seconds_within_their_day_folders_date_at_the_p
         assert dt.datetime.fromtimestamp(float(rec.time_s[0]), tz=dt.UTC).strftime("%H%M%S") == name.split("/")[2][:6]
 
 
-def test_a_wagons_recordings_do_not_overlap(recordings) -> None:  # type: ignore[no-untyped-def]
+def test_a_wagons_recordings_do_not_overlap(recordings) -> None:
     for w in range(PLAN.n_wagons):
         spans = sorted((float(r.time_s[0]), float(r.time_s[-1])) for n, r in recordings.items() if n.startswith(PLAN.wagon_id(w)))
         assert len(spans) == 5
-        assert all(later[0] > earlier[1] for earlier, later in zip(spans, spans[1:]))
+        assert all(later[0] > earlier[1] for earlier, later in itertools.pairwise(spans))
 
 
-def test_no_temporary_file_is_left_in_the_tree(tree) -> None:  # type: ignore[no-untyped-def]
+def test_no_temporary_file_is_left_in_the_tree(tree) -> None:
     root, _, _ = tree
     assert [p for p in root.rglob(".*")] == []
 
 
-def test_progress_rises_from_zero_to_one(tree) -> None:  # type: ignore[no-untyped-def]
+def test_progress_rises_from_zero_to_one(tree) -> None:
     _, _, fractions = tree
     assert fractions[0] == 0.0 and fractions[-1] == 1.0
-    assert all(b >= a for a, b in zip(fractions, fractions[1:]))
+    assert all(b >= a for a, b in itertools.pairwise(fractions))
     assert len(fractions) > 10
 
 
 # ---- the truth
 
 
-def test_truth_json_is_the_returned_truth(tree) -> None:  # type: ignore[no-untyped-def]
+def test_truth_json_is_the_returned_truth(tree) -> None:
     root, truth, _ = tree
     assert truth_json(root) == json.loads(json.dumps(truth.to_dict()))
 
 
-def test_truth_states_each_wagons_load_faults_and_damages_as_planned(tree) -> None:  # type: ignore[no-untyped-def]
+def test_truth_states_each_wagons_load_faults_and_damages_as_planned(tree) -> None:
     root, _, _ = tree
     wagons = truth_json(root)["wagons"]
     assert [(w["wagon"], w["load"], w["type"]) for w in wagons] == [
@@ -237,14 +238,14 @@ def test_truth_states_each_wagons_load_faults_and_damages_as_planned(tree) -> No
     assert [w["sensor_damages"] for w in (wagons[0], wagons[2])] == [[], []]
 
 
-def test_truths_run_list_names_exactly_the_recordings_written(tree) -> None:  # type: ignore[no-untyped-def]
+def test_truths_run_list_names_exactly_the_recordings_written(tree) -> None:
     root, _, _ = tree
     files = [r["file"] for w in truth_json(root)["wagons"] for r in w["runs"]]
     assert sorted(files) == sorted(p.relative_to(root).as_posix() for p in root.glob("*/*/*.csv.gz"))
     assert len(files) == len(set(files)) == 15
 
 
-def test_runs_differ_in_track_speed_or_direction(tree) -> None:  # type: ignore[no-untyped-def]
+def test_runs_differ_in_track_speed_or_direction(tree) -> None:
     root, _, _ = tree
     runs = [r for w in truth_json(root)["wagons"] for r in w["runs"]]
     assert len({r["mean_speed_kmh"] for r in runs}) == len(runs)
@@ -252,7 +253,7 @@ def test_runs_differ_in_track_speed_or_direction(tree) -> None:  # type: ignore[
     assert len({r["track"] for r in runs}) > 1 and len({r["reversed"] for r in runs}) == 2
 
 
-def test_the_fault_is_simulated_from_its_days_first_run_on_and_never_before(tree) -> None:  # type: ignore[no-untyped-def]
+def test_the_fault_is_simulated_from_its_days_first_run_on_and_never_before(tree) -> None:
     root, _, _ = tree
     wagons = truth_json(root)["wagons"]
     faulty = wagons[0]["runs"]
@@ -266,7 +267,7 @@ def test_the_fault_is_simulated_from_its_days_first_run_on_and_never_before(tree
     assert all(r["simulated_faults"] == [] for w in wagons[1:] for r in w["runs"])
 
 
-def test_the_damaged_sensor_is_noisy_in_the_recordings_from_its_day_on_only(tree, recordings) -> None:  # type: ignore[no-untyped-def]
+def test_the_damaged_sensor_is_noisy_in_the_recordings_from_its_day_on_only(tree, recordings) -> None:
     root, _, _ = tree
     wagon = truth_json(root)["wagons"][1]
     assert [r["damage"] for r in wagon["runs"]] == [None, None, None, "noisy a3", "noisy a3"]
@@ -278,7 +279,7 @@ def test_the_damaged_sensor_is_noisy_in_the_recordings_from_its_day_on_only(tree
 
 
 @pytest.mark.slow
-def test_a_seeded_plan_writes_a_byte_identical_tree(tree, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_a_seeded_plan_writes_a_byte_identical_tree(tree, tmp_path: Path) -> None:
     root, _, _ = tree
     again = tmp_path / "again"
     simulate_fleet(again, PLAN)

@@ -15,6 +15,7 @@ from scipy import stats
 
 from bogiemon.daemon.cli.main import main
 from bogiemon.daemon.config import load_config
+from bogiemon.daemon.vocabulary import LoadState
 from bogiemon.lab.study import (
     INDICATORS,
     RULE_MAX_FALSE_ALARM,
@@ -57,8 +58,8 @@ def test_healthy_windows_stay_under_the_rules_false_alarm_rate(quick: StudyResul
 
 def test_the_shipped_thresholds_confirm_no_healthy_run_and_every_broken_rear_outer_coil(quick: StudyResult) -> None:
     thresholds = load_config().decision_settings().thresholds
-    full = check_thresholds(quick, "full", quick.default_window_s, thresholds["full"])
-    tare = check_thresholds(quick, "tare", quick.default_window_s, thresholds["tare"])
+    full = check_thresholds(quick, "full", quick.default_window_s, thresholds[LoadState.FULL])
+    tare = check_thresholds(quick, "tare", quick.default_window_s, thresholds[LoadState.TARE])
     assert full.healthy_runs == tare.healthy_runs == 24
     assert full.healthy_confirmed_runs == tare.healthy_confirmed_runs == 0
     assert full.confirmed_share_per_case["type_a.full.rear_outer@0"] == 1.0

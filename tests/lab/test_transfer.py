@@ -4,6 +4,7 @@ fleet, and the report's counts."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from types import SimpleNamespace
@@ -57,7 +58,7 @@ def test_a_wagon_of_model_b_takes_the_same_draws_as_model_a_on_its_own_parameter
     # Each corner's tolerance scales model B's own healthy corner.
     kz_b, fs_b = b.healthy_corner("tare")
     custom = {(f.bogie, f.corner): f for f in scenario_for(RunSpec("healthy", 0, "tare", HEALTHY, 1.0, None, 0, 60.0), b, 500.0, GEOMETRY).standing_faults}
-    assert len(custom) == 8 and all(0.95 * kz_b <= f.kz_n_per_m <= 1.05 * kz_b and 0.9 * fs_b <= f.fs_n <= 1.1 * fs_b for f in custom.values())
+    assert len(custom) == 8 and all(f.kz_n_per_m is not None and f.fs_n is not None and 0.95 * kz_b <= f.kz_n_per_m <= 1.05 * kz_b and 0.9 * fs_b <= f.fs_n <= 1.1 * fs_b for f in custom.values())
 
 
 def test_the_existing_plans_keep_their_runs_and_the_transfer_plans_differ_only_in_the_model() -> None:
@@ -82,7 +83,7 @@ def test_the_existing_plans_keep_their_runs_and_the_transfer_plans_differ_only_i
 def test_a_stops_run_brakes_to_a_stand_of_60_to_120_s_and_starts_again(number: int) -> None:
     run = RunSpec("stops", 0, "full", HEALTHY, 1.0, None, number, 600.0)
     points = draw_conditions(run).speed.points
-    stands = [(t0, t1) for (t0, v0), (t1, v1) in zip(points, points[1:]) if v0 == 0.0 and v1 == 0.0]
+    stands = [(t0, t1) for (t0, v0), (t1, v1) in itertools.pairwise(points) if v0 == 0.0 and v1 == 0.0]
     assert 1 <= len(stands) <= 2
     assert all(STAND_S[0] <= t1 - t0 <= STAND_S[1] for t0, t1 in stands)
     assert points[0][1] >= 50.0 and points[-1][1] >= 50.0  # running at the start and the end
@@ -104,7 +105,7 @@ def test_a_cached_simulation_of_the_other_model_is_never_reused() -> None:
     assert reuse(cached, plan_b, CONFIG) == {}
 
 
-def result(role: str, number: int, suspected: int = 0, confirmed: int = 0, problems: dict | None = None, loads: tuple = ("full",)) -> RunResult:  # type: ignore[type-arg]
+def result(role: str, number: int, suspected: int = 0, confirmed: int = 0, problems: dict | None = None, loads: tuple = ("full",)) -> RunResult:
     return RunResult(
         run=RunSpec(role, 0, "full", HEALTHY, 1.0, None, number, 600.0), track="fra-5", reversed=False,
         confirmed_s=100.0 if confirmed else None, confirmed_before_onset=False, diagnosis=None, trigger=None,
@@ -143,7 +144,7 @@ def transfer_plan_pair() -> tuple[EvaluationPlan, EvaluationPlan]:
         (["--full"], "--full is a size of the transfer plan: use it with --transfer"),
     ],
 )
-def test_the_transfer_flags_that_do_not_go_together_are_one_line_user_errors(argv, message, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_the_transfer_flags_that_do_not_go_together_are_one_line_user_errors(argv, message, tmp_path, capsys) -> None:
     assert main(["evaluate", "-o", str(tmp_path / "out"), "-q", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"bogiemon: error: {message}") and err.count("\n") == 1
@@ -154,7 +155,7 @@ def test_the_transfer_flags_that_do_not_go_together_are_one_line_user_errors(arg
 # The shipped priors on wagons far from the training fleet
 
 
-def _windows(accel: np.ndarray) -> list:  # type: ignore[type-arg]
+def _windows(accel: np.ndarray) -> list:
     return IndicatorStream(SETTINGS, GEOMETRY, clip_level_mps2=CONFIG.health.clip_level_mps2).process(accel)
 
 
@@ -207,14 +208,14 @@ def test_a_wagon_30_percent_off_the_training_fleet_raises_no_suspension_alarm_an
 
 
 @pytest.fixture(scope="module")
-def quick_report(tmp_path_factory):  # type: ignore[no-untyped-def]
+def quick_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("transfer")
     doc = run_transfer(CONFIG, out, "bogiemon evaluate --transfer --quick -o x", size="quick", data_file=out / "data.pkl")
     return out, doc
 
 
 @pytest.mark.slow
-def test_the_quick_transfer_writes_four_judgements_side_by_side_with_consistent_counts(quick_report) -> None:  # type: ignore[no-untyped-def]
+def test_the_quick_transfer_writes_four_judgements_side_by_side_with_consistent_counts(quick_report) -> None:
     out, doc = quick_report
     readme = (out / "README.md").read_text()
     header = next(line for line in readme.splitlines() if line.startswith("| target |"))
@@ -249,7 +250,7 @@ def test_the_quick_transfer_writes_four_judgements_side_by_side_with_consistent_
 
 
 @pytest.mark.slow
-def test_the_quick_transfer_reports_what_the_sensors_observe_of_its_training_faults(quick_report) -> None:  # type: ignore[no-untyped-def]
+def test_the_quick_transfer_reports_what_the_sensors_observe_of_its_training_faults(quick_report) -> None:
     """The quick plan's training faults are rear outer coils, seen in every window on both models."""
     out, doc = quick_report
     assert set(doc["visibility"]) == {"a", "b"}

@@ -2,6 +2,7 @@
 
 import copy
 import json
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from bogiemon.simulator import vehicle as model_a
 from bogiemon.simulator.errors import SimulationError
 from bogiemon.simulator.model_b import friction, kernel, sensors
 from bogiemon.simulator.model_b.bodies import (
-    N_DOF, N_FRICTION, State, build_model, build_models, forces_reference, natural_frequencies,
+    N_DOF, N_FRICTION, State, WagonModel, build_model, build_models, forces_reference, natural_frequencies,
     nominal_corner_values, static_equilibrium, step_reference,
 )  # fmt: skip
 from bogiemon.simulator.model_b.parameters import default_parameter_set, wagon_parameters, with_ideal_sensor
@@ -148,6 +149,7 @@ def test_at_rest_the_springs_carry_the_sprung_weight_and_the_contacts_all_of_it(
 
 def test_on_a_perfect_track_the_wagon_stays_at_rest_and_the_sensors_read_gravity() -> None:
     result = simulate(Scenario(model="b", track="perfect", duration_s=3.0, parameters=IDEAL, faults=BROKEN_LL))
+    assert isinstance(result.model, WagonModel)
     rest = static_equilibrium(result.model)
     np.testing.assert_allclose(result.final_state.q, rest.q, atol=1e-12)
     np.testing.assert_allclose(result.accel_mps2, 9.81, atol=1e-9)
@@ -329,6 +331,7 @@ def test_ten_minutes_at_120_kmh_on_high_level_track_stay_bounded_at_both_loads()
         assert np.max(np.abs(a - 9.81)) < 150.0  # inside the converter's +/-16 g
         first, last = a[:30000].std(axis=0), a[-30000:].std(axis=0)
         assert np.all(last < 1.3 * first) and np.all(first < 1.3 * last)
+        assert isinstance(result.model, WagonModel)
         rest = static_equilibrium(result.model)
         assert np.max(np.abs(result.final_state.q - rest.q)[[0, 3, 6]]) < 0.02  # m
 
@@ -348,7 +351,7 @@ def test_a_seed_gives_the_same_samples_and_a_mixed_batch_what_each_gives_alone()
 
 
 def test_a_fault_onset_on_model_b_changes_the_run_only_from_then() -> None:
-    base = dict(model="b", duration_s=6.0, seed=2, fs_hz=200.0)
+    base: dict[str, Any] = dict(model="b", duration_s=6.0, seed=2, fs_hz=200.0)
     healthy = simulate(Scenario(**base)).accel_mps2
     late = simulate(Scenario(**base, faults=BROKEN_LL, fault_onset_s=3.0)).accel_mps2
     np.testing.assert_array_equal(late[:600], healthy[:600])
@@ -424,10 +427,12 @@ def test_each_rail_has_the_target_psd_and_the_rails_the_target_coherence(name: s
 def test_jointed_track_has_staggered_joints_every_rail_length_and_welded_track_random_welds() -> None:
     rng = np.random.default_rng(2)
     jointed = track_model(PARAMS, "fra-4").track_class
+    assert jointed is not None
     left, right = event_positions_m(jointed, 1000.0, rng)
     assert np.allclose(np.diff(left), 25.0, atol=1.1) and np.allclose(np.diff(right), 25.0, atol=1.1)
-    assert np.min(np.abs((right[:, None] - left[None, :]))) > 10.0  # staggered by about half a rail
+    assert np.min(np.abs(right[:, None] - left[None, :])) > 10.0  # staggered by about half a rail
     welded = track_model(PARAMS, "erri-low").track_class
+    assert welded is not None
     gaps = np.diff(event_positions_m(welded, 200000.0, rng)[0])
     assert gaps.mean() == pytest.approx(60.0, rel=0.05) and gaps.min() >= 15.0 and gaps.std() > 20.0
 

@@ -10,7 +10,7 @@ from bogiemon.simulator.params import default_parameter_set
 from bogiemon.simulator.run import simulate, simulate_batch
 from bogiemon.simulator.scenario import Scenario, SpeedProfile
 from bogiemon.simulator.suspension import CORNER_ORDER, parse_fault
-from bogiemon.simulator.vehicle import State, build_model, forces_reference, natural_frequencies, static_equilibrium
+from bogiemon.simulator.vehicle import State, VehicleModel, build_model, forces_reference, natural_frequencies, static_equilibrium
 
 PARAMS = default_parameter_set()
 
@@ -21,6 +21,7 @@ def test_on_a_perfect_track_the_wagon_rests_with_the_springs_carrying_the_weight
     scenario = Scenario(load=load, track="perfect", duration_s=5.0, faults=tuple(parse_fault(f) for f in faults))
     result = simulate(scenario)
     model = result.model
+    assert isinstance(model, VehicleModel)
     rest = static_equilibrium(model)
     weight_n = model.params.sprung_mass_kg * model.params.gravity_mps2
     zero8 = np.zeros(8)
@@ -155,6 +156,7 @@ def test_ten_minutes_at_120_kmh_on_high_level_track_stay_bounded(load: str) -> N
     # Neither the first nor the last minute grows: same RMS within a factor 1.5.
     first, last = accel[:30000].std(axis=0), accel[-30000:].std(axis=0)
     assert np.all(last < 1.5 * first) and np.all(first < 1.5 * last)
+    assert isinstance(result.model, VehicleModel)
     rest = static_equilibrium(result.model)
     assert np.max(np.abs(result.final_state.q - rest.q)[[0, 3, 6]]) < 0.05  # m
 

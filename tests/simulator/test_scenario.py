@@ -4,6 +4,7 @@ import io
 import json
 import subprocess
 import sys
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -257,7 +258,7 @@ def test_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path: Path) -> None:
 
 def test_a_fault_with_an_onset_leaves_the_run_healthy_until_then_and_faulty_after() -> None:
     fault = (parse_fault("type_a:rear_outer:0.0@leading-left"),)
-    base = dict(duration_s=8.0, seed=3, fs_hz=200.0)
+    base: dict[str, Any] = dict(duration_s=8.0, seed=3, fs_hz=200.0)
     healthy = simulate(Scenario(**base))
     onset = simulate(Scenario(**base, faults=fault, fault_onset_s=4.0))
     faulty = simulate(Scenario(**base, faults=fault))

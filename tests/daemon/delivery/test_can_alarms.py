@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from typing import Any
 from pathlib import Path
 
 import can
@@ -29,6 +30,14 @@ from bogiemon.drivers.player import PlayError, open_player_bus
 DB = cantools.database.load_string(shipped_dbc_text(), database_format="dbc")
 THRESHOLDS = {"i2_norm": {"center": 0.0, "warning": 0.02, "alarm": 0.03}, "i4_norm": {"center": 0.0, "warning": 0.1, "alarm": 0.15}}
 _channels = itertools.count()
+
+
+def decode(frame_id: int, data: bytes | bytearray) -> dict[str, Any]:
+    """A frame's signals as cantools decodes them (the DBC has no container frames)."""
+    assert isinstance(DB, cantools.database.can.Database)
+    decoded = DB.decode_message(frame_id, bytes(data))
+    assert isinstance(decoded, dict)
+    return decoded
 
 
 def channel() -> str:
@@ -79,11 +88,11 @@ def test_the_indicator_furthest_beyond_its_alarm_level_is_the_one_sent() -> None
 def test_encoded_payloads_decode_with_cantools_to_what_was_meant() -> None:
     codecs = load_alarm_codecs()
     event = alarm_event(EventKind.CLEARED, i4_norm=-7.5)  # beyond the Value signal's range: clipped
-    decoded = DB.decode_message(0x300, alarm_payload(codecs, event, counter=258))
+    decoded = decode(0x300, alarm_payload(codecs, event, counter=258))
     assert decoded["Counter"] == 2 and str(decoded["Kind"]) == "CLEARED" and str(decoded["Severity"]) == "info"
     assert str(decoded["Indicator"]) == "i4_norm" and decoded["Fired"] == 2
     assert decoded["Value"] == pytest.approx(-3.2768) and decoded["EventRef"] == int(event.event_id[:6], 16)
-    beat = DB.decode_message(0x301, heartbeat_payload(codecs, idle_heartbeat("confirmed"), counter=7, alarm_counter=300))
+    beat = decode(0x301, heartbeat_payload(codecs, idle_heartbeat("confirmed"), counter=7, alarm_counter=300))
     assert beat == {"Counter": 7, "Mode": beat["Mode"], "SensorsOk": 1, "Judged": 1, "Gate": beat["Gate"], "MqttLink": beat["MqttLink"],
                     "AlarmCounter": 300 % 256, "Windows": 70_000 % 65536, "Events": 3, "OutboxPending": 255}  # fmt: skip
     assert (str(beat["Mode"]), str(beat["Gate"]), str(beat["MqttLink"])) == ("confirmed", "none", "up")
@@ -106,11 +115,11 @@ def test_confirmed_and_cleared_go_on_the_bus_and_nothing_else_does() -> None:
     finally:
         sink.close()
         receiver.shutdown()
-    decoded = [DB.decode_message(f.arbitration_id, f.data) for f in frames]
+    decoded = [decode(f.arbitration_id, f.data) for f in frames]
     assert [(str(d["Kind"]), d["Counter"], str(d["Severity"])) for d in decoded] == [("CONFIRMED", 1, "alarm"), ("CLEARED", 2, "info")]
     assert [d["EventRef"] for d in decoded] == [int(events[1].event_id[:6], 16), int(events[3].event_id[:6], 16)]
     assert all(not f.is_extended_id and f.dlc == 8 for f in frames)
-    assert DB.decode_message(0x302, diagnosis.data)["Counter"] == 1  # the alarm frame it belongs to
+    assert decode(0x302, diagnosis.data)["Counter"] == 1  # the alarm frame it belongs to
 
 
 def test_the_heartbeat_repeats_the_state_and_the_last_alarm_counter() -> None:
@@ -120,12 +129,12 @@ def test_the_heartbeat_repeats_the_state_and_the_last_alarm_counter() -> None:
     sink = CanAlarmSink(load_alarm_codecs(), "virtual", name, heartbeat_period_s=0.02, heartbeat_source=lambda: idle_heartbeat(mode[0]))
     sink.start()
     try:
-        before = [DB.decode_message(0x301, f.data) for f in receive(receiver, 0x301, 3)]
+        before = [decode(0x301, f.data) for f in receive(receiver, 0x301, 3)]
         mode[0] = "confirmed"
         sink.publish(alarm_event(EventKind.CONFIRMED))
         assert len(receive(receiver, 0x300, 1)) == 1
         receive(receiver, 0x301, 1)  # one that may have been under way
-        after = DB.decode_message(0x301, receive(receiver, 0x301, 1)[0].data)
+        after = decode(0x301, receive(receiver, 0x301, 1)[0].data)
     finally:
         sink.close()
         receiver.shutdown()
@@ -164,22 +173,24 @@ def test_a_bus_that_is_not_there_yet_is_retried_quietly_and_the_alarm_waits_for_
 def test_a_confirmed_diagnosis_names_its_diagonal_pair_a_bit_each_and_never_a_certainty() -> None:
     codecs = load_alarm_codecs()
     event = alarm_event(EventKind.CONFIRMED)
+    assert isinstance(event.details, dict)
     event.details["diagnosis"] = {"corner": "leading-left or trailing-right", "corners": ["leading-left", "trailing-right"],
                                   "corner_confidence": 0.999}  # fmt: skip
     event.details["trigger"] = "trend"
-    decoded = DB.decode_message(0x302, diagnosis_payload(codecs, event, alarm_counter=5))
+    decoded = decode(0x302, diagnosis_payload(codecs, event, alarm_counter=5))
     assert decoded["Counter"] == 5 and decoded["Corners"] == 1 | 8 and str(decoded["Trigger"]) == "trend"
     assert decoded["Confidence"] == 99 and decoded["EventRef"] == int(event.event_id[:6], 16)
     unknown = alarm_event(EventKind.CONFIRMED)
+    assert isinstance(unknown.details, dict)
     unknown.details["diagnosis"] = {"corner": "unknown", "corners": [], "corner_confidence": 0.6}
-    assert DB.decode_message(0x302, diagnosis_payload(codecs, unknown, alarm_counter=6))["Corners"] == 0
+    assert decode(0x302, diagnosis_payload(codecs, unknown, alarm_counter=6))["Corners"] == 0
 
 
 def test_not_judged_and_judged_again_go_on_the_bus_as_alarm_frames() -> None:
     codecs = load_alarm_codecs()
     for kind, code in ((EventKind.NOT_JUDGED, "NOT_JUDGED"), (EventKind.JUDGED_AGAIN, "JUDGED_AGAIN")):
         event = Event(time_s=1.7e9, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="c0ffee", details={"message": "x"})
-        decoded = DB.decode_message(0x300, alarm_payload(codecs, event, counter=1))
+        decoded = decode(0x300, alarm_payload(codecs, event, counter=1))
         assert str(decoded["Kind"]) == code and str(decoded["Indicator"]) == "none" and decoded["Fired"] == 0
 
 
@@ -187,14 +198,14 @@ def test_the_coverage_goes_with_every_heartbeat() -> None:
     codecs = load_alarm_codecs()
     beat = Heartbeat(mode="normal", has_window=True, sensors_ok=True, judged=False, gate=None, mqtt_link="up", windows=10, events=1,
                      outbox_pending=0, judged_windows=70_001, not_judged=True, unjudged_running_s=7_259.0)  # fmt: skip
-    decoded = DB.decode_message(0x303, coverage_payload(codecs, beat, counter=9))
+    decoded = decode(0x303, coverage_payload(codecs, beat, counter=9))
     assert decoded == {"Counter": 9, "NotJudged": 1, "UnjudgedRunning": 120, "JudgedWindows": 70_001 % 65536}
     name = channel()
     receiver = VirtualBus(channel=name, receive_own_messages=False)
     sink = CanAlarmSink(codecs, "virtual", name, heartbeat_period_s=0.02, heartbeat_source=lambda: beat)
     sink.start()
     try:
-        coverage = [DB.decode_message(0x303, f.data) for f in receive(receiver, 0x303, 2)]
+        coverage = [decode(0x303, f.data) for f in receive(receiver, 0x303, 2)]
     finally:
         sink.close()
         receiver.shutdown()

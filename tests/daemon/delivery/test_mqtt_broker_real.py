@@ -291,4 +291,5 @@ def test_the_service_delivers_its_events_status_and_alarm_frames_and_survives_a_
     status = next(s for s in listener.statuses if s.window is not None and s.mode == "confirmed")
     assert status.wagon_id == WAGON and status.window is not None and status.window.judged and status.counters["events"] == 2
     assert set(status.window.indicators) == {"i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm"}
-    assert str(DB.decode_message(alarm.arbitration_id, alarm.data)["Kind"]) == "CONFIRMED"
+    decoded = DB.decode_message(alarm.arbitration_id, bytes(alarm.data))
+    assert isinstance(decoded, dict) and str(decoded["Kind"]) == "CONFIRMED"
