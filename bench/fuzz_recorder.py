@@ -35,28 +35,25 @@ import functools
 import math
 import os
 import random
-import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import structlog
 
 import fuzz_core
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from bogiemon.daemon.config import BogiemonConfig, parse_config  # noqa: E402
-from bogiemon.daemon.events import Event, EventKind  # noqa: E402
-from bogiemon.daemon.monitor import MemoryEventLog, Monitor  # noqa: E402
-from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings, keep_the_reserve_free  # noqa: E402
-from bogiemon.daemon.store import EventStore  # noqa: E402
-from bogiemon.drivers.atomic import final_name_of  # noqa: E402
-from bogiemon.drivers.base import Block  # noqa: E402
-from bogiemon.drivers.recording import RecordingError, open_recording_reader, write_recording  # noqa: E402
-from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config  # noqa: E402
+from bogiemon.daemon.config import BogiemonConfig, parse_config
+from bogiemon.daemon.events import Event, EventKind
+from bogiemon.daemon.monitor import MemoryEventLog, Monitor
+from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings, keep_the_reserve_free
+from bogiemon.daemon.store import EventStore
+from bogiemon.drivers.atomic import final_name_of
+from bogiemon.drivers.base import Block
+from bogiemon.drivers.recording import RecordingError, open_recording_reader, write_recording
+from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config
 
 MIB = 1 << 20
 DISK_SIZE = "48m"  # the reserve with MQTT status messages (29.4 MiB), earlier recordings and room above
@@ -225,7 +222,7 @@ class Files:
 
     sizes: dict[str, int]
     earlier: int
-    uploaded: int = 0
+    uploaded: set[str] = field(default_factory=set)  # taken by the uploader, not the recorder
 
 
 def own_files(folder: Path) -> dict[str, int]:
@@ -242,6 +239,11 @@ def own_files(folder: Path) -> dict[str, int]:
 
 
 def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
+    with structlog.testing.capture_logs():  # the recorder's log lines, kept out of the report
+        return _run(data, ctx)
+
+
+def _run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     disk = _disk()
     for entry in disk.iterdir():
         fuzz_core.remove_tree(entry)
@@ -260,7 +262,6 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     if data["foreign"]:
         (recordings / "notes.txt").write_bytes(bytes(50_000))
         (recordings / "20190101T000000Z_confirmed.csv.gz").symlink_to(filler)
-    files = Files(own_files(recordings), earlier=len(own_files(recordings)))
     if data["level"] not in ("far", "empty"):
         _fill(filler, disk, max(STORE_ROOM_BYTES, reserve + data["level_bytes"]))
     elif data["level"] == "far":
@@ -278,6 +279,8 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     verdict = _gave_back(disk, recordings, reserve, "before the store opens")
     if verdict is not None:
         return verdict
+    # The recorder's counters start here: what the start deleted is no recording of this run's.
+    files = Files(own_files(recordings), earlier=len(own_files(recordings)))
     store = EventStore(state)
     recorder = Recorder(settings, write=write)
     try:
@@ -326,8 +329,7 @@ def _disk_event(what: str, n_bytes: int, disk: Path, filler: Path, recordings: P
             name, size = own[0]
             files.sizes.setdefault(name, size)
             (recordings / name).unlink()
-            files.uploaded += 1
-            files.sizes.pop(name)
+            files.uploaded.add(name)
 
 
 def _gave_back(disk: Path, recordings: Path, reserve: int, when: str) -> fuzz_core.Verdict:
@@ -369,10 +371,10 @@ def _judge(data: fuzz_core.Input, config: BogiemonConfig, blocks: list[Block], e
     if len(written) != c.snapshots_written + c.periodic_written:
         return f"counters do not add up: {len(written)} recordings written, counted {c.snapshots_written} + {c.periodic_written}"
     left = own_files(recordings)
-    if len(left) != files.earlier + len(written) - c.files_deleted - files.uploaded:
+    if len(left) != files.earlier + len(written) - c.files_deleted - len(files.uploaded):
         return (f"counters do not add up: {len(left)} recordings left, {files.earlier} earlier + {len(written)} written - "
-                f"{c.files_deleted} deleted - {files.uploaded} uploaded")  # fmt: skip
-    gone = set(files.sizes) - set(left)
+                f"{c.files_deleted} deleted - {len(files.uploaded)} uploaded")  # fmt: skip
+    gone = set(files.sizes) - set(left) - files.uploaded
     if c.bytes_deleted != sum(files.sizes[name] for name in gone):
         return f"counters do not add up: {c.bytes_deleted} bytes deleted, the files gone held {sum(files.sizes[n] for n in gone)}"
     for name, _, _ in written:

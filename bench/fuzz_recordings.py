@@ -1,10 +1,12 @@
 """Fuzz targets of compressed recordings: .csv.gz and .parquet files through the reading path of
 `bogiemon replay` (drivers/replay.py's RecordingReplaySource, block by block) and `bogiemon analyze`
-(daemon/analysis.py's open_recording and analyze_recording, window by window).
+(daemon/analysis.py's open_recording and analyze_recording, window by window; `bogiemon calibrate`
+reads its recordings through the same two).
 
 recording-gz: the CSV inputs of the csv target (valid and mutated) gzip-compressed at any level,
 in one member or several, then damaged as gzip streams (cut anywhere, header and trailer fields
 changed, deflate bits flipped, trailing bytes, a stream inside a stream, a Parquet file inside),
+bz2 and xz files (no reader decompresses them: refused as they are, under any name, bombs too),
 and decompression bombs: a small gzip holding a line of up to 4 GiB, a huge file of blank lines or
 of padded rows, or a stream just under and just over drivers/files.py's bound (100 times its size).
 recording-parquet: recordings from the product's writer and from pyarrow with other options
@@ -21,19 +23,21 @@ replay delivers must be exactly the reference's samples (clipped to the converte
 block at its first sample's time and at the file's rate ((n - 1) / (last - first)); what a
 recording that ends in an error delivered first must be the reference's first samples, and its
 blocks must follow one another at the rate they claim. A valid recording must be read whole. One
-input in four is also analysed as `analyze` does, with 2 s windows: the windows must be the ones
+short input in four is also analysed as `analyze` does, with 2 s windows: the windows must be the ones
 the reference's samples hold, at their samples' times. The peak RSS of each input's reading
 (VmHWM after /proc/self/clear_refs) is bounded: PEAK_RSS_BOUND_MIB.
 """
 
 from __future__ import annotations
 
+import bz2
 import csv
 import ctypes
 import functools
 import gc
 import gzip
 import io
+import lzma
 import math
 import os
 import random
@@ -84,6 +88,8 @@ highpass_hz = 0.5
 lowpass_hz = 5.0
 [health]
 structure_checks = false
+[decision]
+method = "thresholds"
 """
 STEP_SLACK = 0.011  # a step may be 1 % off the file's (drivers/recording.py), and rounding
 
@@ -503,15 +509,15 @@ def generate_gz(rng: random.Random) -> fuzz_core.Input:
     """A .csv.gz recording: the csv target's file compressed, damaged as a stream, or a bomb."""
     kind = rng.choices(
         ("csv", "big", "members", "cut", "flip", "trailer", "header", "trailing", "nested", "parquet", "not_gzip", "bytes",
-         "bomb_line", "bomb_blank", "bomb_padded", "bomb_edge"),
-        weights=(30, 3, 6, 8, 6, 4, 3, 4, 1, 1, 2, 6, 3, 2, 2, 3),
+         "bomb_line", "bomb_blank", "bomb_padded", "bomb_edge", "bz2", "xz"),
+        weights=(30, 3, 6, 8, 6, 4, 3, 4, 1, 1, 2, 6, 3, 2, 2, 3, 2, 2),
     )[0]  # fmt: skip
     csv_input = fuzz_csv.generate(rng)
     text, valid = csv_input["file"], csv_input["valid"]
     level = rng.choice((1, 6, 6, 9, 0))
     name = rng.choice(("run.csv.gz",) * 8 + ("run.csv", "RUN.CSV.GZ"))  # gzip by its name, or by its magic alone
     if kind == "big":
-        n = rng.choice((20_000, 100_000, 400_000))
+        n = rng.choice((20_000, 50_000, 100_000))
         text, valid = _rows_text(rng, n, rng.choice(RATES_HZ[:6]), rng.choice((0.0, 1.7e9))), True
     raw = _gzip_member(text, level, rng)
     if kind == "members":  # several members, one of them maybe empty: one stream for every reader
@@ -577,8 +583,21 @@ def generate_gz(rng: random.Random) -> fuzz_core.Input:
         filler_n = max(0, _inflate_bound(len(raw) + 64) - len(body) + rng.choice((-4096, -1, 0, 1, 4096)))
         raw = gzip_bomb(body, b"\n" * 1024, filler_n // 1024, b"\n" * (filler_n % 1024))
         valid = False
+    elif kind in ("bz2", "xz"):  # formats no reader decompresses: refused as they are, never inflated
+        raw = _other_compression(kind, text) if rng.random() < 0.5 else _other_bomb(kind, rng.choice((1 << 20, 16 << 20)))
+        name, valid = rng.choice((f"run.csv.{kind}", f"run.csv.{kind}", "run.csv", "run.csv.gz", "run.parquet")), False
     return {"file": raw, "name": name, "valid": valid and kind in ("csv", "big", "members", "trailing", "trailer"),
-            "kind": kind, "analyze": rng.random() < 0.25, "max_block_s": rng.choice((1.0, 1.0, 0.1, 0.02, 7.0))}  # fmt: skip
+            "kind": kind, "analyze": rng.random() < 0.25 and kind != "big", "max_block_s": rng.choice((1.0, 1.0, 0.1, 0.02, 7.0))}  # fmt: skip
+
+
+def _other_compression(kind: str, data: bytes) -> bytes:
+    return bz2.compress(data) if kind == "bz2" else lzma.compress(data)
+
+
+@functools.cache
+def _other_bomb(kind: str, size: int) -> bytes:
+    """A recording's header and row, then `size` bytes of blank lines, bz2- or xz-compressed (a few KiB)."""
+    return _other_compression(kind, HEADER + b"0,1,2,3\n0.002,1,2,3\n" + b"\n" * size)
 
 
 def _inflate_bound(compressed_bytes: int) -> int:
@@ -767,7 +786,7 @@ def generate_parquet(rng: random.Random) -> fuzz_core.Input:
         raw = _bad_rows(rng, n)
     elif kind == "big_group":
         raw = _big_group(rng)
-        valid = True  # at the bound: read whole; one row over it: the reader's own refusal is checked below
+        valid = pq.ParquetFile(pa.BufferReader(raw)).metadata.row_group(0).num_rows <= MAX_PARQUET_GROUP_ROWS  # one row over it: refused
     elif kind == "empty":
         time_s, accel = _samples(rng, rng.choice((0, 1, 2)))
         sink = pa.BufferOutputStream()
@@ -802,7 +821,8 @@ def generate_parquet(rng: random.Random) -> fuzz_core.Input:
     name = rng.choice(("run.parquet",) * 9 + ("run.csv",))  # Parquet by its name, or by its magic alone
     if kind == "gzip":
         name = rng.choice(("run.parquet", "run.parquet.gz"))
-    return {"file": raw, "name": name, "valid": valid, "kind": kind, "analyze": rng.random() < 0.25,
+    # Analysed only when short: thousands of windows take longer than the input's time limit, and tell nothing more.
+    return {"file": raw, "name": name, "valid": valid, "kind": kind, "analyze": rng.random() < 0.25 and n <= 20_000,
             "max_block_s": rng.choice((1.0, 1.0, 0.1, 0.02, 7.0))}  # fmt: skip
 
 
@@ -811,21 +831,47 @@ def generate_parquet(rng: random.Random) -> fuzz_core.Input:
 Samples = tuple[np.ndarray, np.ndarray]  # time_s (n,), accel_mps2 (n, 3) clipped
 
 
+def _inflate(raw: bytes, bound: int) -> bytes | str:
+    """The gzip stream decompressed, or why not: past the bound, damaged, or a line longer than
+    MAX_LINE_BYTES (where decompressing stops, as a reader that refuses it does: a line of a
+    bomb would otherwise be inflated to hundreds of MiB here, beyond an input's time)."""
+    chunks: list[bytes] = []
+    total = line_n = 0  # line_n: the length of the line still open at the end of what was read
+    try:
+        with gzip.GzipFile(fileobj=io.BytesIO(raw)) as stream:
+            while chunk := stream.read(1 << 20):
+                total += len(chunk)
+                if total > bound:
+                    return f"decompresses to more than {bound} bytes"
+                byte = np.frombuffer(chunk, np.uint8)
+                breaks = np.flatnonzero((byte == 10) | (byte == 13))  # LF, CR
+                if breaks.size:
+                    longest = max(line_n + int(breaks[0]), int(np.diff(breaks).max()) - 1 if breaks.size > 1 else 0)
+                    line_n = len(chunk) - int(breaks[-1]) - 1
+                else:
+                    longest = line_n = line_n + len(chunk)
+                if max(longest, line_n) > MAX_LINE_BYTES:
+                    return "a line longer than 1 MiB"
+                chunks.append(chunk)
+    except (OSError, EOFError, zlib.error) as exc:
+        return f"not a whole gzip stream ({exc})"
+    return b"".join(chunks)
+
+
 def reference_gz(raw: bytes, name: str) -> Samples | str:
     """What Python's gzip module (within files.py's bound) and the csv module read, or why they cannot."""
     gzipped = name.lower().endswith(".gz") or raw[:2] == b"\x1f\x8b"
     data = raw
     if gzipped:
-        bound = _inflate_bound(len(raw))
-        try:
-            with gzip.GzipFile(fileobj=io.BytesIO(raw)) as stream:
-                data = stream.read(bound + 1)
-                if len(data) > bound:
-                    return f"decompresses to more than {bound} bytes"
-        except (OSError, EOFError, zlib.error) as exc:
-            return f"not a whole gzip stream ({exc})"
-    if any(len(line) > MAX_LINE_BYTES for line in re.split(rb"\r\n|\r|\n", data)):
+        inflated = _inflate(raw, _inflate_bound(len(raw)))
+        if isinstance(inflated, str):
+            return inflated
+        data = inflated
+    if any(len(line.group()) > MAX_LINE_BYTES for line in re.finditer(rb"[^\r\n]+", data)):
         return "a line longer than 1 MiB"
+    # Runs of line breaks as one: blank lines hold no row (csv gives them as empty rows, skipped),
+    # and a bomb of millions of them would take the csv module's list of rows past the memory limit.
+    data = re.sub(rb"[\r\n]+", b"\n", data)
     csv.field_size_limit(sys.maxsize)
     try:
         ref = fuzz_csv.reference(data)
