@@ -74,7 +74,7 @@ def generate(rng: random.Random) -> fuzz_core.Input:
     return {"seed": rng.randrange(2**31), "healthy_s": healthy_s, "broken_s": broken_s, "reloads": reloads}
 
 
-@dataclass
+@dataclass(frozen=True)
 class Settings:
     """What the harness writes into the config: the parts a reload may change."""
 
