@@ -31,11 +31,9 @@ from __future__ import annotations
 
 import ctypes
 import errno
-import functools
 import math
 import os
 import random
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
