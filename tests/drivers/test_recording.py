@@ -420,3 +420,19 @@ def test_a_parquet_footer_that_claims_rows_its_pages_do_not_hold_is_one_error(tm
     (tmp_path / "lying.parquet").write_bytes(raw.replace(b"\x2c\x15\x06", b"\x2c\x15\x00"))
     with pytest.raises(RecordingError, match=r"lying.parquet: row group 0 holds 0 rows, its footer says 3: damaged; copy it again"):
         open_recording_reader(tmp_path / "lying.parquet")
+
+
+def test_the_survey_counts_lines_as_the_byte_by_byte_reference_in_every_short_text() -> None:
+    import itertools
+
+    from bogiemon.drivers.recording import _count_lines
+
+    def reference(data: bytes) -> tuple[int, int]:
+        # A line break is CRLF, CR or LF; a line holding anything starts after one (or at 0).
+        lines = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")
+        return sum(1 for line in lines if line), len(lines) - 1
+
+    for n in range(1, 9):
+        for parts in itertools.product([b"7", b"\n", b"\r"], repeat=n):
+            data = b"".join(parts)
+            assert _count_lines(data) == reference(data), data
