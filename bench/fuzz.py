@@ -3,7 +3,8 @@
 Each target has a generator of valid inputs and of mutations of them (bit flips, truncations,
 splices, huge, NaN and infinite numbers, wrong types, boundary integers, garbage lines, random
 bytes) and runs a fixed number of inputs (100 000 where one takes under a millisecond, 10 000
-otherwise), each under a time limit, in worker processes the harness kills when an input hangs in
+for a file, a few thousand for a compressed recording, a few hundred where one input is a daemon
+on a disk or under reloads), each under a time limit, in worker processes the harness kills when an input hangs in
 C. Per target it prints the inputs, the clear errors (the documented exception for bad input:
 CLEAR_ERRORS below), the crashes (any other exception), the hangs (over the limit), the silently
 wrong results (checked against a plain reference where one exists: cantools per frame, a
@@ -49,6 +50,7 @@ sys.path.insert(0, str(BENCH))
 import fuzz_core  # noqa: E402  (stdlib only: the parent stays light, the targets load in the workers)
 
 REPO = BENCH.parent
+sys.path.insert(1, str(REPO))  # the daemon's targets build their signals with tests/daemon/synthetic.py
 DEFAULT_CRASH_DIR = BENCH / "fuzz_crashes"
 DEFAULT_SEED = 17
 # A worker's address space: what it holds after importing the targets, plus this much. An input
@@ -84,6 +86,11 @@ SPECS: tuple[Spec, ...] = (
     Spec("mqtt-listen", "fuzz_mqtt", 100_000, 3000, 5.0, 400, "the listener's per-message handling, --store and the printing"),
     Spec("outbox", "fuzz_mqtt", 10_000, 1000, 5.0, 50, "the publisher reading pending events and status back from a store"),
     Spec("store", "fuzz_store", 10_000, 1000, 5.0, 50, "EventStore on damaged files: events, the first commit"),
+    Spec("recording-gz", "fuzz_recordings", 2000, 200, 60.0, 10, "replay's and analyze's reading of .csv.gz: damaged streams, bombs; against gzip and csv"),
+    Spec("recording-parquet", "fuzz_recordings", 2000, 200, 60.0, 10, "replay's and analyze's reading of .parquet: lying footers and pages, schemas, nulls; against pyarrow"),
+    Spec("recorder-disk", "fuzz_recorder", 300, 20, 60.0, 5, "the recorder beside the event store on a small tmpfs filled to random levels"),
+    Spec("reload", "fuzz_reload", 150, 12, 90.0, 3, "the service over a broken spring under random SIGHUP reloads, good, changed and broken"),
+    # Fleet trees and partitions (bench/fuzz_fleet.py) register here.
 )  # fmt: skip
 BY_NAME = {s.name: s for s in SPECS}
 
@@ -109,7 +116,11 @@ CLEAR_ERRORS: dict[str, tuple[str, ...]] = {
     "mqtt-listen": (),  # the listener counts a bad message (Listener.invalid) and acknowledges it
     "outbox": (STORE_ERROR,),
     "store": (STORE_ERROR,),
-}
+    "recording-gz": (RECORDING_ERROR,),
+    "recording-parquet": (RECORDING_ERROR,),
+    "recorder-disk": (),  # nothing the recorder meets on a full disk is the user's error: it counts and goes on
+    "reload": (),  # a bad config on SIGHUP is rejected and logged, never raised
+}  # a target without an entry has no clear error: every exception it lets through is a crash
 
 
 def resolve(names: tuple[str, ...]) -> tuple[tuple[type[BaseException], ...], list[str]]:
@@ -128,6 +139,16 @@ def resolve(names: tuple[str, ...]) -> tuple[tuple[type[BaseException], ...], li
 
 
 # ---- one input, in a worker ----------------------------------------------------------------------
+
+
+class Context(fuzz_core.Context):
+    """A worker's scratch space, and the figures a target notes of the input it runs: ctx.figures,
+    a name to a number (the peak memory of a reading, say), emptied before each input; the report
+    gives each one's largest over the run and the input that gave it."""
+
+    def __init__(self, root: Path) -> None:
+        super().__init__(root)
+        self.figures: dict[str, float] = {}
 
 
 def _on_alarm(_signum: int, _frame: Any) -> None:
@@ -196,6 +217,11 @@ class Tally:
     run_s: float = 0.0
     max_input_s: float = 0.0
     max_input_index: int = -1
+    figures: dict[str, tuple[float, int]] = field(default_factory=dict)  # per name: the largest, and its input
+
+    def note(self, name: str, value: float, index: int) -> None:
+        if name not in self.figures or value > self.figures[name][0]:
+            self.figures[name] = (value, index)
 
     def add_finding(self, outcome_kind: str, key: str, count: int, example: dict[str, Any] | None) -> None:
         entry = self.findings[outcome_kind].setdefault(key, {"count": 0, "example": None})
@@ -213,6 +239,8 @@ class Tally:
         self.run_s += other.run_s
         if other.max_input_s > self.max_input_s:
             self.max_input_s, self.max_input_index = other.max_input_s, other.max_input_index
+        for name, (value, index) in other.figures.items():
+            self.note(name, value, index)
 
     @property
     def crashes(self) -> int:
@@ -241,11 +269,12 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
     try:
         modules = {spec.module: importlib.import_module(spec.module) for spec in SPECS}
         targets = {t.name: t for module in modules.values() for t in module.TARGETS}
-        clear = {name: resolve(names)[0] for name, names in CLEAR_ERRORS.items()}
+        clear = {spec.name: resolve(CLEAR_ERRORS.get(spec.name, ()))[0] for spec in SPECS}
         size_kib = int(Path("/proc/self/status").read_text().split("VmSize:")[1].split()[0])
         limit = size_kib * 1024 + MEMORY_HEADROOM_BYTES
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-        ctx = fuzz_core.Context(fuzz_core.scratch_root(f"bogiemon-fuzz-{os.getpid()}-"))
+        ctx = Context(fuzz_core.scratch_root(f"bogiemon-fuzz-{os.getpid()}-"))
+        unavailable: dict[str, str | None] = {}
     except BaseException:  # noqa: BLE001 - a target module that does not import: the harness cannot run
         conn.send(("fatal", traceback.format_exc(), 0))
         return
@@ -256,6 +285,12 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
                 return
             name, start, stop, limit_s = message
             target = targets[name]
+            if name not in unavailable:  # asked once per worker: a target may need what this machine lacks (root, a mount)
+                check = getattr(modules[BY_NAME[name].module], "unavailable", None)
+                unavailable[name] = check(name) if check is not None else None
+            if unavailable[name] is not None:
+                conn.send(("unavailable", unavailable[name], stop))
+                continue
             ctx.cache.clear()
             tally, sent_sizes = Tally(), dict[tuple[str, str], int]()
             last_report = time.monotonic()
@@ -266,10 +301,13 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
                 except BaseException:  # noqa: BLE001 - a bug of the harness, not a finding
                     conn.send(("fatal", f"{name}: generating input {index} failed:\n{traceback.format_exc()}", index))
                     return
+                ctx.figures = {}
                 began = time.perf_counter()
                 outcome = run_input(target, data, ctx, clear[name], limit_s)
                 took_s = time.perf_counter() - began
                 tally.n += 1
+                for figure, value in ctx.figures.items():
+                    tally.note(figure, value, index)
                 tally.run_s += took_s
                 if took_s > tally.max_input_s:
                     tally.max_input_s, tally.max_input_index = took_s, index
@@ -331,6 +369,7 @@ class TargetResult:
     tally: Tally
     wall_s: float
     unresolved: list[str]
+    unavailable: str | None = None  # why the target could not run on this machine (nothing was counted)
 
 
 def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: Any) -> TargetResult:
@@ -338,6 +377,7 @@ def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: 
     pending: deque[tuple[int, int]] = deque((i, min(i + spec.batch, n_inputs)) for i in range(0, n_inputs, spec.batch))
     hard_limit_s = 2 * spec.limit_s + 10.0  # past the soft limit's signal: stuck where signals do not reach
     began = time.monotonic()
+    unavailable: str | None = None
     while pending or any(w.job is not None for w in workers):
         for w in workers:
             if w.job is None and pending:
@@ -362,6 +402,9 @@ def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: 
                 if what == "tally":
                     tally.merge(part)
                     w.job = (start, stop, next_index)
+                elif what == "unavailable":
+                    unavailable, w.job = part, None
+                    pending.clear()
                 else:
                     w.job = None
                 continue
@@ -370,7 +413,7 @@ def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: 
                 workers[i] = _replace(w, mp, seed, spec, tally, pending, "crash", "the worker process died")
             elif running_s > hard_limit_s:
                 workers[i] = _replace(w, mp, seed, spec, tally, pending, "hang", f"killed after {running_s:.0f} s in one input")
-    return TargetResult(spec, n_inputs, tally, time.monotonic() - began, resolve(CLEAR_ERRORS[spec.name])[1])
+    return TargetResult(spec, n_inputs, tally, time.monotonic() - began, resolve(CLEAR_ERRORS.get(spec.name, ()))[1], unavailable)
 
 
 def _replace(w: Worker, mp: Any, seed: int, spec: Spec, tally: Tally, pending: deque[tuple[int, int]], kind: str, why: str) -> Worker:
@@ -437,6 +480,9 @@ def table(results: list[TargetResult]) -> str:
     rows = [head]
     for r in results:
         t = r.tally
+        if r.unavailable is not None:
+            rows.append((r.spec.name, "not run", *("-" * (len(head) - 2))))
+            continue
         rows.append((r.spec.name, f"{t.n:,}".replace(",", " "), str(t.ok), str(sum(t.clear.values())), str(t.crashes),
                      str(len(t.findings["crash"])), str(t.hangs), str(t.wrong), f"{r.wall_s:.1f}", f"{t.max_input_s * 1e3:.1f}"))  # fmt: skip
     widths = [max(len(row[i]) for row in rows) for i in range(len(head))]
@@ -456,8 +502,12 @@ def details(results: list[TargetResult], saved: dict[str, dict[str, dict[str, st
                 what = f"{ex.get('exception', '')} at {ex.get('site', '')}: " if kind != "wrong" else ""
                 file = saved.get(r.spec.name, {}).get(kind, {}).get(key, "")
                 lines.append(f"  {kind:<5} {entry['count']:>6} x {what}{ex.get('message', '')[:200]}" + (f"\n               -> {file}" if file else ""))
+        if r.unavailable is not None:
+            lines.append(f"  not run: {r.unavailable}")
         if t.clear:
             lines.append("  clear  " + ", ".join(f"{name} {n}" for name, n in t.clear.most_common()))
+        for figure, (value, index) in sorted(t.figures.items()):
+            lines.append(f"  {figure}: {value:.4g} at most (input {index})")
         if r.unresolved:
             lines.append("  (clear-error classes not defined yet: " + ", ".join(r.unresolved) + ")")
         if lines:
@@ -474,6 +524,8 @@ def as_json(results: list[TargetResult], seed: int, quick: bool, jobs: int, wall
                 "distinct_crashes": len(r.tally.findings["crash"]), "hangs": r.tally.hangs, "wrong": r.tally.wrong,
                 "wall_s": round(r.wall_s, 2), "run_s": round(r.tally.run_s, 2), "slowest_input_s": round(r.tally.max_input_s, 4),
                 "findings": {kind: {key: e["count"] for key, e in by_key.items()} for kind, by_key in r.tally.findings.items()},
+                "figures": {name: {"max": value, "input": index} for name, (value, index) in r.tally.figures.items()},
+                "planned": r.inputs, "unavailable": r.unavailable,
             }
             for r in results
         },
@@ -490,13 +542,20 @@ def run_here(name: str, data: fuzz_core.Input, show: bool) -> int:
     target = next(t for t in module.TARGETS if t.name == name)
     if show:
         print(fuzz_core.dump_input(data))
-    clear, _ = resolve(CLEAR_ERRORS[name])
+    clear, _ = resolve(CLEAR_ERRORS.get(name, ()))
     signal.signal(signal.SIGALRM, _on_alarm)
-    ctx = fuzz_core.Context(fuzz_core.scratch_root(f"bogiemon-fuzz-{os.getpid()}-"))
+    check = getattr(module, "unavailable", None)
+    why = check(name) if check is not None else None
+    if why is not None:
+        print(f"{name}: not run: {why}")
+        return 0
+    ctx = Context(fuzz_core.scratch_root(f"bogiemon-fuzz-{os.getpid()}-"))
     try:
         outcome = run_input(target, data, ctx, clear, spec.limit_s)
     finally:
         fuzz_core.remove_scratch(os.getpid())
+    for figure, value in ctx.figures.items():
+        print(f"{name}: {figure} {value:.4g}")
     print(f"{name}: {outcome.kind}" + (f" {outcome.key}" if outcome.key else "") + (f": {outcome.message}" if outcome.message else ""))
     if outcome.traceback:
         print(outcome.traceback, end="")
@@ -545,6 +604,9 @@ def main(argv: list[str] | None = None) -> int:
             results.append(result)
             saved[name] = save_findings(result, args.seed, args.crash_dir)
             t = result.tally
+            if result.unavailable is not None:
+                print(f"fuzz: {name}: not run: {result.unavailable}", file=sys.stderr, flush=True)
+                continue
             print(f"fuzz: {name}: {t.n} inputs, {sum(t.clear.values())} clear errors, {t.crashes} crashes "
                   f"({len(t.findings['crash'])} distinct), {t.hangs} hangs, {t.wrong} wrong, {result.wall_s:.1f} s", file=sys.stderr, flush=True)  # fmt: skip
     except KeyboardInterrupt:

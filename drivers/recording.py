@@ -332,7 +332,8 @@ class _RowChecker:
             dt_s = np.diff(time_s, prepend=previous)
             back = dt_s <= 0.0  # False where a time is NaN, and for the very first row
         first_bad = _first(nan | far | back)
-        if self.reference_step_s is None:
+        step_known = self.reference_step_s is not None
+        if not step_known:
             steps = dt_s[1:first_bad] if self.last_s is None else dt_s[:first_bad]
             if steps.size:
                 self.reference_step_s = _median(steps[:REFERENCE_STEPS])
@@ -341,6 +342,16 @@ class _RowChecker:
             with np.errstate(invalid="ignore"):
                 off = np.abs(dt_s - step_s) > TIME_STEP_TOLERANCE * step_s
             first_bad = min(first_bad, _first(off))
+            if not step_known and self._off_the_rate(step_s):
+                # The rows' step is not the rate the reader was opened with (first to last time):
+                # a gap further in. No row is given, as every one would be used at the wrong rate.
+                if first_bad < m:
+                    self._raise(first_bad, time_s, accel_mps2, dt_s, nan, far, back)
+                self.reader.error(
+                    f"its first time steps of {step_s:.6g} s ({1.0 / step_s:.6g} Hz) are not its rate from the first to the last "
+                    f"time ({self.reader.fs_hz:.6g} Hz): a gap or a jump further in; recordings must be uniformly sampled: "
+                    "split the file at the gap"
+                )
         good_t, good_a = time_s[:first_bad], accel_mps2[:first_bad]
         if first_bad:
             beyond = (good_a < MIN_ACCEL_MPS2) | (good_a > MAX_ACCEL_MPS2)
@@ -353,6 +364,13 @@ class _RowChecker:
             self._raise(first_bad, time_s, accel_mps2, dt_s, nan, far, back)
         self.rows += m
         self.last_s = float(time_s[-1])
+
+    def _off_the_rate(self, step_s: float) -> bool:
+        """Whether the file's step disagrees with the rate its reader announced (its survey's, when there was one)."""
+        fs_hz = self.reader.fs_hz
+        if math.isnan(self.reader.start_s) or not (math.isfinite(fs_hz) and fs_hz > 0):
+            return False  # _check_whole reads the rows through for a bad one: no rate is announced
+        return abs(1.0 / fs_hz - step_s) > TIME_STEP_TOLERANCE * step_s
 
     def _raise(self, i: int, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], dt_s: NDArray[np.float64],
                nan: NDArray[np.bool_], far: NDArray[np.bool_], back: NDArray[np.bool_]) -> NoReturn:  # fmt: skip
@@ -710,11 +728,16 @@ class _ParquetReader(RecordingReader):
             groups = [i for i in range(meta.num_row_groups) if meta.row_group(i).num_rows]
             if groups:
                 try:
-                    first_s = pf.read_row_group(groups[0], columns=["time_s"]).column(0)[0].as_py()
+                    first = pf.read_row_group(groups[0], columns=["time_s"]).column(0)
                     last = pf.read_row_group(groups[-1], columns=["time_s"]).column(0)
-                    last_s = last[len(last) - 1].as_py()  # None if null: the rows are read through for it
                 except (pa.ArrowException, OSError) as exc:
                     self.error(f"not a readable Parquet file ({_short(exc)}); {RECORDING_FILE.description}")
+                # A footer may claim rows its pages do not hold (found by make fuzz: an IndexError here).
+                for i, column in ((groups[0], first), (groups[-1], last)):
+                    if len(column) != meta.row_group(i).num_rows:
+                        self.error(f"row group {i} holds {len(column)} rows, its footer says {meta.row_group(i).num_rows}: damaged; copy it again")
+                first_s = first[0].as_py()
+                last_s = last[len(last) - 1].as_py()  # None if null: the rows are read through for it
         self._check_whole(min_samples, first_s, last_s)
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:

@@ -393,6 +393,35 @@ def test_a_parquet_row_group_larger_than_the_bound_is_refused_before_it_is_read(
         open_recording_reader(tmp_path / "r.parquet")
 
 
+def test_a_gap_that_puts_the_rate_off_its_steps_gives_no_row_at_that_rate(tmp_path: Path) -> None:
+    # Found by make fuzz (recording-gz): a 40-row file missing one row was replayed at its
+    # first-to-last rate, 2.6 % off the step of every row before the gap, before the gap was named.
+    t = np.delete(np.arange(41) / 10.0, 28)
+    write_csv_recording(tmp_path / "gap.csv", t, np.zeros((t.size, 3)))
+    reader = open_recording_reader(tmp_path / "gap.csv")
+    given: list[np.ndarray] = []
+    with pytest.raises(RecordingError, match=r"gap.csv: line 30: time step 0.2 s differs from the file's 0.1 s \(10 Hz\)"):
+        for time_s, _ in reader.chunks():
+            given.append(time_s)
+    assert given == []
+
+
+def test_a_parquet_footer_that_claims_rows_its_pages_do_not_hold_is_one_error(tmp_path: Path) -> None:
+    # Found by make fuzz (recording-parquet): a data page header that lies about its count (0 values
+    # where the footer says 3) ended the open with an IndexError.
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({c: np.arange(3.0) / 500 for c in ("time_s", "a1", "a2", "a3")}), tmp_path / "good.parquet",
+                   compression="none", use_dictionary=False, data_page_version="1.0", write_statistics=False)  # fmt: skip
+    raw = (tmp_path / "good.parquet").read_bytes()
+    # Each column's DataPageHeader (PageHeader field 5) opens with num_values = 3 (a zigzag varint 6).
+    assert raw.count(b"\x2c\x15\x06") == 4
+    (tmp_path / "lying.parquet").write_bytes(raw.replace(b"\x2c\x15\x06", b"\x2c\x15\x00"))
+    with pytest.raises(RecordingError, match=r"lying.parquet: row group 0 holds 0 rows, its footer says 3: damaged; copy it again"):
+        open_recording_reader(tmp_path / "lying.parquet")
+
+
 def test_the_survey_counts_lines_as_the_byte_by_byte_reference_in_every_short_text() -> None:
     import itertools
 
