@@ -90,7 +90,7 @@ SPECS: tuple[Spec, ...] = (
     Spec("recording-parquet", "fuzz_recordings", 2000, 200, 60.0, 10, "replay's and analyze's reading of .parquet: lying footers and pages, schemas, nulls; against pyarrow"),
     Spec("recorder-disk", "fuzz_recorder", 300, 20, 60.0, 5, "the recorder beside the event store on a small tmpfs filled to random levels"),
     Spec("reload", "fuzz_reload", 150, 12, 90.0, 3, "the service over a broken spring under random SIGHUP reloads, good, changed and broken"),
-    # Fleet trees and partitions (bench/fuzz_fleet.py) register here.
+    Spec("fleet", "fuzz_fleet", 1000, 8, 30.0, 4, "fleet analyze/judge/report on damaged trees, partitions and JUDGED"),
 )  # fmt: skip
 BY_NAME = {s.name: s for s in SPECS}
 
@@ -115,6 +115,7 @@ CLEAR_ERRORS: dict[str, tuple[str, ...]] = {
     "mqtt-schema": (VALIDATION_ERROR, SCHEMA_ERROR),
     "mqtt-listen": (),  # the listener counts a bad message (Listener.invalid) and acknowledges it
     "outbox": (STORE_ERROR,),
+    "fleet": ("bogiemon.fleet.layout.FleetError", "bogiemon.fleet.judge.JudgeError", "bogiemon.fleet.judged_files.ReportError"),
     "store": (STORE_ERROR,),
     "recording-gz": (RECORDING_ERROR,),
     "recording-parquet": (RECORDING_ERROR,),
