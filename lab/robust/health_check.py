@@ -43,9 +43,11 @@ from typing import Any
 
 import numpy as np
 
-from bogiemon.daemon.config import BogiemonConfig
+from bogiemon.daemon.config import BogiemonConfig, validate_config
 from bogiemon.daemon.events import EventKind
+from bogiemon.daemon.gating import Gate
 from bogiemon.daemon.health import LONG_WAVE_PHASE_RAD, assess_window, rail_pair_coherence, same_rail_pair
+from bogiemon.daemon.noise_floor import floor_excess
 from bogiemon.daemon.structure import learn_structure
 from bogiemon.daemon.verdict import MonitorSettings, WindowJudge
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, WindowIndicators
@@ -279,53 +281,65 @@ def commissioned_settings(runs: WagonNoiseRuns, config: BogiemonConfig) -> Monit
 class NoiseCell:
     runs: int = 0
     named: int = 0  # NOISY on the noisy channel in some window (a SENSOR_FAULT naming it)
-    elsewhere: int = 0  # a problem on another channel
+    elsewhere: int = 0  # a problem on another channel (in a healthy run: on any channel)
     suspension: int = 0  # a SUSPECTED or CONFIRMED in the run
     windows: int = 0  # the runs' windows that were not gated
     windows_named: int = 0  # ... with NOISY on the noisy channel
+    # Per run, the largest noise-floor excess (daemon/noise_floor.py floor_excess) of the noisy
+    # channel (of any channel in a healthy run) over its moving windows: the margin up to which the
+    # floor alone would name it.
+    excess: list[float] = field(default_factory=list)
+
+
+def judge_trial_run(windows: Sequence[WindowIndicators], settings: MonitorSettings, channel: int | None, cell: NoiseCell) -> dict[str, set[str]]:
+    """One run of the trial through the daemon's WindowJudge, counted into its cell; its problems."""
+    judge_ = WindowJudge(settings)
+    name = f"a{channel + 1}" if channel is not None else None
+    problems: dict[str, set[str]] = {}
+    suspension, excess = False, 0.0
+    for window in windows:
+        verdict = judge_.judge(window)
+        for ch, found in verdict.health.problems.items():
+            problems.setdefault(ch, set()).update(p.value for p in found)
+        suspension |= any(e.kind in SUSPENSION for e in verdict.events)
+        if verdict.health.gate is None:
+            cell.windows += 1
+            cell.windows_named += name is not None and any(p.value == "noisy" for p in verdict.health.problems.get(name, ()))
+        floor = floor_excess(window, settings.health) if verdict.health.gate is not Gate.STANDSTILL else None
+        if floor is not None:
+            excess = max(excess, float(floor[channel] if channel is not None else floor.max()))
+    cell.runs += 1
+    cell.named += name is not None and "noisy" in problems.get(name, set())
+    cell.elsewhere += any(ch != name for ch in problems)
+    cell.suspension += suspension
+    cell.excess.append(excess)
+    return problems
 
 
 def noise_floor_trial(model: str, variant: str, wagons: Sequence[WagonNoiseRuns], config: BogiemonConfig) -> list[str]:
     """The trial's table for one model and part (module docstring)."""
     cells: dict[tuple[str, str], NoiseCell] = {}
-    healthy: dict[str, NoiseCell] = {}
     false: list[str] = []
     for w, runs in enumerate(wagons):
         settings = commissioned_settings(runs, config)
         for load, windows in runs.healthy:
-            out = judge(windows, settings)
-            cell = healthy.setdefault(load, NoiseCell())
-            cell.runs += 1
-            cell.elsewhere += bool(out.problems)
-            cell.suspension += bool(out.suspension)
-            if out.problems:
-                false.append(f"wagon {w} {load}: {dict(out.problems)}")
+            problems = judge_trial_run(windows, settings, None, cells.setdefault((load, "healthy"), NoiseCell()))
+            if problems:
+                false.append(f"wagon {w} {load}: {problems}")
         for run in runs.noisy:
-            name = f"a{run.channel + 1}"
-            judge_ = WindowJudge(settings)
-            cell = cells.setdefault((run.load, run.where), NoiseCell())
-            problems: dict[str, set[str]] = {}
-            suspension = False
-            for window in run.windows:
-                verdict = judge_.judge(window)
-                for channel, found in verdict.health.problems.items():
-                    problems.setdefault(channel, set()).update(p.value for p in found)
-                suspension |= any(e.kind in SUSPENSION for e in verdict.events)
-                if verdict.health.gate is None:
-                    cell.windows += 1
-                    cell.windows_named += any(p.value == "noisy" for p in verdict.health.problems.get(name, ()))
-            cell.runs += 1
-            cell.named += "noisy" in problems.get(name, set())
-            cell.elsewhere += any(ch != name for ch in problems)
-            cell.suspension += suspension
+            judge_trial_run(run.windows, settings, run.channel, cells.setdefault((run.load, run.where), NoiseCell()))
     lines = [f"model {model.upper()}, sensor {variant}: {len(wagons)} wagons"]
     for (load, where), c in sorted(cells.items()):
+        excess = np.array(c.excess)
+        if where == "healthy":
+            lines.append(f"  {load:4} healthy    : runs {c.runs:3}, a sensor fault (false) {c.elsewhere}, suspension {c.suspension}; "
+                         f"largest floor excess {excess.max():.2f}")  # fmt: skip
+            continue
         lines.append(
             f"  {load:4} hiss {where:6}: runs {c.runs:3}, NOISY on the noisy channel {c.named:3} ({100 * c.named / max(c.runs, 1):3.0f} %), "
-            f"a problem elsewhere {c.elsewhere}, windows named {c.windows_named} of {c.windows}, suspension {c.suspension}"
+            f"a problem elsewhere {c.elsewhere}, windows named {c.windows_named} of {c.windows}, suspension {c.suspension}; "
+            f"floor excess per run: smallest {excess.min():.3g}, 10th percentile {np.quantile(excess, 0.1):.3g}"
         )
-    for load, c in sorted(healthy.items()):
-        lines.append(f"  {load:4} healthy    : runs {c.runs:3}, a sensor fault (false) {c.elsewhere}, suspension {c.suspension}")
     lines += [f"    false: {f}" for f in false]
     return lines
 
@@ -340,8 +354,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sensor-variant", default="standard", help=f"sensor parts, comma-separated: {', '.join(SENSOR_VARIANTS)} (default standard)")
     parser.add_argument("--fleet", choices=("training", "evaluation"), default="evaluation", help="whose wagons (default evaluation)")
     parser.add_argument("--data", type=Path, help="a file keeping the noise-floor trial's windows, to judge them again without simulating")
+    parser.add_argument("--noise-floor-margin", type=float, help="[health] noise_floor_margin to judge with (default: the shipped config's)")
     args = parser.parse_args(argv)
     config = BogiemonConfig()
+    if args.noise_floor_margin is not None:
+        data = config.model_dump(mode="json")
+        data["health"]["noise_floor_margin"] = args.noise_floor_margin
+        config = validate_config(data, "--noise-floor-margin")
     settings = config.monitor_settings()
     geometry = settings.geometry
     models = [m.strip() for m in args.models.split(",") if m.strip()]
@@ -351,7 +370,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown sensor variants {unknown}: use some of {', '.join(SENSOR_VARIANTS)}")
         print(f"the noise floor on the {args.fleet} fleet's first {args.wagons} wagons, {args.commissioning} commissioning "
-              f"and {args.runs} test runs of {NOISE_RUN_S:g} s per load; hiss {HISS_RMS_MPS2:g} m/s^2")  # fmt: skip
+              f"and {args.runs} test runs of {NOISE_RUN_S:g} s per load; hiss {HISS_RMS_MPS2:g} m/s^2; "
+              f"noise_floor_margin {config.health.noise_floor_margin:g}")  # fmt: skip
         for model in models:
             for variant in variants:
                 wagons = trial_runs(model, variant, args.fleet, args.wagons, args.commissioning, args.runs, settings, args.data)
@@ -474,4 +494,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # Through the module's own name, so that the windows kept by --data pickle as its classes, not __main__'s.
+    from bogiemon.lab.robust import health_check
+
+    raise SystemExit(health_check.main())
