@@ -23,9 +23,14 @@ SENSOR_VARIANTS), commissioned as `bogiemon calibrate` does (daemon/calibrate.py
 on each load's commissioning runs, drawn as the README asks), then each of its healthy runs judged
 by the daemon's WindowJudge as it is, with the hiss after the sensor on each channel in turn, and
 re-simulated with the hiss inside one channel's sensor (its element, before its filters; the
-channel turns from run to run). Printed per model, part, load and where the noise enters: the runs
-with NOISY on the noisy channel, with a problem on another channel, the share of their windows
-named, suspension events; and the healthy runs with a false sensor fault.
+channel turns from run to run), and a run per load with one or two stops. Printed per model, part,
+load and where the noise enters: the runs with NOISY on the noisy channel, with a problem on
+another channel, the share of their windows named, suspension events, and per run the margin up to
+which the noise floor alone names it (daemon/noise_floor.py floor_excess); the healthy runs (and
+those with stops) with a false sensor fault and the largest floor excess of any of their windows
+(what a margin must stay above). --noise-floor-margin judges
+with another margin; --drawn-commissioning commissions each wagon on runs drawn like any run's
+(what a keeper happens to record) instead of on every track and both ends of the speeds.
 
     .venv/bin/python -m bogiemon.lab.robust.health_check --noise-floor --models a,b \
         --sensor-variant standard,mems-odr10,two-pole --fleet evaluation --wagons 4 --runs 3 --commissioning 6
@@ -51,6 +56,7 @@ from bogiemon.daemon.noise_floor import floor_excess
 from bogiemon.daemon.structure import learn_structure
 from bogiemon.daemon.verdict import MonitorSettings, WindowJudge
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, WindowIndicators
+from bogiemon.drivers.atomic import write_bytes_atomically
 from bogiemon.lab.robust.fleet import (
     HEALTHY, HISS_RMS_MPS2, EvaluationPlan, RunSpec, damage_sensors, draw_conditions, hiss_inside, scenario_for, with_sensor_variant,
 )  # fmt: skip
@@ -196,6 +202,7 @@ class WagonNoiseRuns:
     commissioning: dict[str, list[tuple[WindowIndicators, ...]]]  # per load, its runs
     healthy: list[tuple[str, tuple[WindowIndicators, ...]]]  # (load, windows)
     noisy: list[NoisyRun]
+    stops: list[tuple[str, tuple[WindowIndicators, ...]]] = field(default_factory=list)  # healthy runs with stops
 
 
 def trial_fleet(model: str, fleet: str, n_wagons: int) -> tuple[Wagon, ...]:
@@ -248,11 +255,43 @@ def noise_trial_wagon(
     return out
 
 
+def drawn_commissioning(
+    model: str, variant: str, fleet: str, wagon_index: int, n_wagons: int, n_commissioning: int, settings: MonitorSettings
+) -> dict[str, list[tuple[WindowIndicators, ...]]]:
+    """The wagon's commissioning runs per load as a keeper records them: what it happened to run
+    (conditions drawn like any run's, not every track and both ends of the speeds)."""
+    from bogiemon.simulator.run import simulate_batch  # the numba kernel: only when running
+
+    wagon = trial_fleet(model, fleet, n_wagons)[wagon_index]
+    role = "train-calibration" if fleet == "training" else "calibration"  # other runs than the other fleet's
+    specs = [(load, RunSpec(role, wagon_index, load, HEALTHY, 1.0, None, r, NOISE_RUN_S)) for load in ("full", "tare") for r in range(n_commissioning)]
+    scenarios = [with_sensor_variant(scenario_for(spec, wagon, FS_HZ, settings.geometry), variant) for _, spec in specs]
+    out: dict[str, list[tuple[WindowIndicators, ...]]] = {"full": [], "tare": []}
+    for (load, _), result in zip(specs, simulate_batch(scenarios), strict=True):
+        out[load].append(tuple(core_windows(result.accel_mps2, settings)))
+    return out
+
+
+def stops_runs(
+    model: str, variant: str, fleet: str, wagon_index: int, n_wagons: int, settings: MonitorSettings
+) -> list[tuple[str, tuple[WindowIndicators, ...]]]:
+    """One healthy run per load that brakes to a stand once or twice and starts again (the
+    evaluation's "stops" role): (load, windows)."""
+    from bogiemon.simulator.run import simulate_batch  # the numba kernel: only when running
+
+    wagon = trial_fleet(model, fleet, n_wagons)[wagon_index]
+    specs = [RunSpec("stops", wagon_index, load, HEALTHY, 1.0, None, 0, NOISE_RUN_S) for load in ("full", "tare")]
+    scenarios = [with_sensor_variant(scenario_for(spec, wagon, FS_HZ, settings.geometry), variant) for spec in specs]
+    return [(spec.load, tuple(core_windows(result.accel_mps2, settings))) for spec, result in zip(specs, simulate_batch(scenarios), strict=True)]
+
+
 def trial_runs(
-    model: str, variant: str, fleet: str, n_wagons: int, n_commissioning: int, n_runs: int, settings: MonitorSettings, data: Path | None
+    model: str, variant: str, fleet: str, n_wagons: int, n_commissioning: int, n_runs: int, settings: MonitorSettings, data: Path | None,
+    drawn: bool = False,
 ) -> list[WagonNoiseRuns]:
-    """Every wagon's runs, from the data file where it holds them (written back with the new ones)."""
-    cache: dict[tuple[Any, ...], WagonNoiseRuns] = {}
+    """Every wagon's runs, from the data file where it holds them (written back with the new ones);
+    drawn: the wagon commissioned on drawn runs instead (drawn_commissioning)."""
+    cache: dict[tuple[Any, ...], Any] = {}
     if data is not None and data.exists():
         with data.open("rb") as f:
             cache = pickle.load(f)  # noqa: S301 - the user's own cache, named on the command line
@@ -261,12 +300,19 @@ def trial_runs(
         key = (model, variant, fleet, w, n_commissioning, n_runs, settings.processing)
         if key not in cache:
             cache[key], added = noise_trial_wagon(model, variant, fleet, w, n_wagons, n_commissioning, n_runs, settings), True
-        out.append(cache[key])
+        runs = cache[key]
+        stops_key = (model, variant, fleet, w, "stops", settings.processing)
+        if stops_key not in cache:
+            cache[stops_key], added = stops_runs(model, variant, fleet, w, n_wagons, settings), True
+        runs = replace(runs, stops=cache[stops_key])
+        if drawn:
+            drawn_key = (model, variant, fleet, w, n_commissioning, "drawn", settings.processing)
+            if drawn_key not in cache:
+                cache[drawn_key], added = drawn_commissioning(model, variant, fleet, w, n_wagons, n_commissioning, settings), True
+            runs = replace(runs, commissioning=cache[drawn_key])
+        out.append(runs)
     if data is not None and added:
-        write_text = data.with_suffix(data.suffix + ".tmp")
-        with write_text.open("wb") as f:
-            pickle.dump(cache, f, protocol=pickle.HIGHEST_PROTOCOL)
-        write_text.replace(data)
+        write_bytes_atomically(data, pickle.dumps(cache, protocol=pickle.HIGHEST_PROTOCOL))
     return out
 
 
@@ -326,13 +372,18 @@ def noise_floor_trial(model: str, variant: str, wagons: Sequence[WagonNoiseRuns]
             problems = judge_trial_run(windows, settings, None, cells.setdefault((load, "healthy"), NoiseCell()))
             if problems:
                 false.append(f"wagon {w} {load}: {problems}")
+        for load, windows in runs.stops:
+            problems = judge_trial_run(windows, settings, None, cells.setdefault((load, "stops"), NoiseCell()))
+            if problems:
+                false.append(f"wagon {w} {load} with stops: {problems}")
         for run in runs.noisy:
             judge_trial_run(run.windows, settings, run.channel, cells.setdefault((run.load, run.where), NoiseCell()))
     lines = [f"model {model.upper()}, sensor {variant}: {len(wagons)} wagons"]
     for (load, where), c in sorted(cells.items()):
         excess = np.array(c.excess)
-        if where == "healthy":
-            lines.append(f"  {load:4} healthy    : runs {c.runs:3}, a sensor fault (false) {c.elsewhere}, suspension {c.suspension}; "
+        if where in ("healthy", "stops"):
+            what = "healthy" if where == "healthy" else "stops  "
+            lines.append(f"  {load:4} {what}    : runs {c.runs:3}, a sensor fault (false) {c.elsewhere}, suspension {c.suspension}; "
                          f"largest floor excess {excess.max():.2f}")  # fmt: skip
             continue
         lines.append(
@@ -355,6 +406,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--fleet", choices=("training", "evaluation"), default="evaluation", help="whose wagons (default evaluation)")
     parser.add_argument("--data", type=Path, help="a file keeping the noise-floor trial's windows, to judge them again without simulating")
     parser.add_argument("--noise-floor-margin", type=float, help="[health] noise_floor_margin to judge with (default: the shipped config's)")
+    parser.add_argument("--drawn-commissioning", action="store_true", help="commission each wagon on runs drawn like any run's, as a keeper records them")
     args = parser.parse_args(argv)
     config = BogiemonConfig()
     if args.noise_floor_margin is not None:
@@ -371,10 +423,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"unknown sensor variants {unknown}: use some of {', '.join(SENSOR_VARIANTS)}")
         print(f"the noise floor on the {args.fleet} fleet's first {args.wagons} wagons, {args.commissioning} commissioning "
               f"and {args.runs} test runs of {NOISE_RUN_S:g} s per load; hiss {HISS_RMS_MPS2:g} m/s^2; "
-              f"noise_floor_margin {config.health.noise_floor_margin:g}")  # fmt: skip
+              f"noise_floor_margin {config.health.noise_floor_margin:g}" + ("; commissioning drawn" if args.drawn_commissioning else ""))  # fmt: skip
         for model in models:
             for variant in variants:
-                wagons = trial_runs(model, variant, args.fleet, args.wagons, args.commissioning, args.runs, settings, args.data)
+                wagons = trial_runs(model, variant, args.fleet, args.wagons, args.commissioning, args.runs, settings, args.data, args.drawn_commissioning)
                 for line in noise_floor_trial(model, variant, wagons, config):
                     print(line)
         return 0
