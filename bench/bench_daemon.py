@@ -1,26 +1,34 @@
-"""Benchmark of the whole daemon at 500 Hz real-time pace: CPU per hour, peak memory, latency.
+"""Benchmark of the whole daemon at 500 Hz real-time pace: CPU per hour, thread by thread, peak memory, latency.
 
-Two feeds, each run for `seconds` of real time on a simulated healthy wagon, with the shipped
+Three feeds, each run for `seconds` of real time on a simulated healthy wagon, with the shipped
 default config, measured over the steady state after the first window (the core only emits
 from then on):
 
 (a) CAN: the service in this process, its CAN source on python-can's virtual bus fed by a player
-    thread (the bus does not cross processes). The process's CPU is measured with
-    time.process_time(), the player's own with its thread's CPU clock, and the player's is
-    subtracted. The latency is from a window's last sample (its time stamp on the bus) to the
-    moment the monitor finished that window: judged, its events committed and reported.
+    thread (the bus does not cross processes), in the hub layout and (a') in the per-node one.
+    The process's CPU is measured with time.process_time(), the player's own with its thread's
+    CPU clock, and the player's is subtracted. Each thread's CPU (/proc/self/task: the Python
+    threads by name, and the native ones no Python code started, such as a BLAS library's
+    workers) is given for the hub layout: where the daemon's CPU goes. The latency is from a
+    window's last sample (its time stamp on the bus) to the moment the monitor finished that
+    window: judged, its events committed and reported.
 (b) A recording without CAN: `bogiemon run` as its own process on a CSV replayed at real time
     ([source] kind = "replay", realtime = true); CPU from /proc/PID/stat, peak RSS from VmHWM:
     the daemon alone.
 
+The daemon's figures are guarded (bench/guard.py): each has a target at most 25 % above the last
+figure recorded on this machine class in bench/results/records.json, and the command exits 1 when
+one is missed. `--record` appends this run's figures there (never automatically).
+
 Run with `make bench-daemon` or
-`.venv/bin/python bench/bench_daemon.py [--runs R] [--seconds S] [--feed can|recording|both]`.
+`.venv/bin/python bench/bench_daemon.py [--runs R] [--seconds S] [--feed can|per-node|recording|all] [--record]`.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -33,6 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import guard  # noqa: E402
 from timing import Figure, table  # noqa: E402
 
 from bogiemon.daemon.config import load_config  # noqa: E402
@@ -50,6 +59,8 @@ TARGET_CPU_S_PER_H = 72.0  # 2 % of one core
 AIM_CPU_S_PER_H = 36.0  # 1 %
 TARGET_RSS_MB = 150.0
 COMMAND = "make bench-daemon"
+FEEDS = ("can", "per-node", "recording")  # "all": each in turn
+LAYOUT_OF_FEED = {"can": "hub", "per-node": "per-node"}
 START_UP_S = 1.0  # the service opens its bus before the player sends
 
 
@@ -63,6 +74,52 @@ class DaemonRun:
     peak_rss_mb: float | None
     latencies_s: tuple[float, ...]
     player_cpu_s_per_hour: float | None = None
+    thread_cpu_s_per_hour: dict[str, float] | None = None  # by role (THREAD_ROLES), the player left out
+
+
+# The daemon's threads by name (daemon/pipeline.py, daemon/delivery/, daemon/recorder.py), in the
+# order the breakdown lists them; the bench's own (the player, the stop timer) are not the daemon's.
+THREAD_ROLES = {
+    "bogiemon-source": "source",
+    "bogiemon-core": "processing",
+    "MainThread": "main",
+    "bogiemon-mqtt": "delivery",
+    "bogiemon-can-alarms": "delivery",
+    "bogiemon-recorder": "recorder",
+}
+ROLE_WHAT = {
+    "source": "CAN source thread (python-can, the decoder, the ring)",
+    "processing": "processing thread (the core, health, decision, event store)",
+    "main": "main thread (supervision: status lines, watchdog)",
+    "delivery": "delivery threads (MQTT, CAN alarms)",
+    "recorder": "recorder's writer thread",
+    "other": "other Python threads (a library's)",
+    "native": "native threads no Python code started (a BLAS library's workers)",
+    "bench": "bench's stop timer (not the daemon's, but in the total)",
+}
+PLAYER_THREAD = "bench-player"
+
+
+def thread_cpu_s() -> dict[int, float]:
+    """CPU seconds (user + system) of each thread of this process, by native thread id."""
+    out = {}
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the thread ended meanwhile
+            continue
+        out[int(task.name)] = (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+    return out
+
+
+def thread_roles() -> dict[int, str]:
+    """The role of each Python thread by native id; a thread not listed is a native one."""
+    def role(name: str) -> str:
+        if name == PLAYER_THREAD:
+            return "player"
+        return "bench" if name.startswith("bench-") else THREAD_ROLES.get(name, "other")
+
+    return {t.native_id: role(t.name) for t in threading.enumerate() if t.native_id is not None}
 
 
 def healthy_accel(duration_s: float, seed: int) -> np.ndarray:
@@ -84,10 +141,26 @@ class _SteadyState:
         self.player_clock = player_clock
         self.first: tuple[float, float, float] | None = None  # process CPU, player CPU, wall
         self.last: tuple[float, float, float] | None = None
+        self.threads_first: dict[int, float] = {}
+        self.threads_last: dict[int, float] = {}
+        self.roles: dict[int, str] = {}
         self.latencies_s: list[float] = []
+        self.closed = False
+
+    def close(self) -> None:
+        """The run is stopping: windows the drain completes are not the steady state (and the
+        source thread may have ended, taking its CPU clock with it)."""
+        self.closed = True
 
     def observe(self, report: WindowVerdict) -> None:
+        if self.closed:
+            return
         now = (time.process_time(), time.clock_gettime(self.player_clock), time.monotonic())
+        threads = thread_cpu_s()
+        self.roles.update(thread_roles())
+        if self.first is None:
+            self.threads_first = threads
+        self.threads_last = threads
         # The CAN source stamps samples with the bus's receive times (time.time()): end_s is
         # one sample period after the window's last sample.
         self.latencies_s.append(time.time() - (report.window.end_s - 1.0 / FS_HZ))
@@ -96,14 +169,25 @@ class _SteadyState:
         self.last = now
 
 
-def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = None) -> DaemonRun:
+    def cpu_by_role(self, span_s: float) -> dict[str, float]:
+        """CPU s/h of each role between the first and the last window (the player left out)."""
+        out: dict[str, float] = {}
+        for tid, cpu_s in self.threads_last.items():
+            role = self.roles.get(tid, "native")
+            if role != "player":
+                out[role] = out.get(role, 0.0) + (cpu_s - self.threads_first.get(tid, 0.0)) / span_s * 3600.0
+        return out
+
+
+def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = None, layout_name: str = "hub") -> DaemonRun:
     """(a): the service here, its CAN source fed by a player thread on a virtual bus."""
     accel = healthy_accel(seconds + 5.0, seed)
     channel = f"bench-daemon-{os.getpid()}-{seed}-{time.monotonic_ns()}"
-    layout = load_layout(None, "hub")
+    layout = load_layout(None, layout_name)
     window_s = load_config(None).processing.window_s
     with tempfile.TemporaryDirectory() as tmp:
-        config_path = _config_file(Path(tmp), f'[source]\nkind = "can"\ninterface = "virtual"\nchannel = "{channel}"')
+        source = f'[source]\nkind = "can"\ninterface = "virtual"\nchannel = "{channel}"\nlayout = "{layout_name}"'
+        config_path = _config_file(Path(tmp), source)
         bus = open_player_bus("virtual", channel)
 
         def run_player() -> None:
@@ -112,7 +196,7 @@ def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = Non
             bus.shutdown()
 
         configure_logging(stream=open(os.devnull, "w"))  # noqa: SIM115 - closed at exit
-        player = threading.Thread(target=run_player, name="bench-player", daemon=True)
+        player = threading.Thread(target=run_player, name=PLAYER_THREAD, daemon=True)
         player.start()
         assert player.ident is not None
         steady = _SteadyState(time.pthread_getcpuclockid(player.ident))
@@ -120,7 +204,12 @@ def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = Non
             config_path, lambda c: CanSource(CanBusPort("virtual", channel), layout, FS_HZ, coalesce_s=coalesce_s),
             sinks=[], observers=[steady.observe],
         )  # fmt: skip
-        timer = threading.Timer(START_UP_S + seconds, service.flags.stop.set)
+        def stop() -> None:
+            steady.close()
+            service.flags.stop.set()
+
+        timer = threading.Timer(START_UP_S + seconds, stop)
+        timer.name = "bench-stop-timer"
         timer.start()
         try:
             status = service.run()
@@ -137,6 +226,7 @@ def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = Non
         peak_rss_mb=None,
         latencies_s=tuple(steady.latencies_s),
         player_cpu_s_per_hour=player_s / span_s * 3600.0,
+        thread_cpu_s_per_hour=steady.cpu_by_role(span_s),
     )
 
 
@@ -180,13 +270,23 @@ def run_recording_subprocess(seconds: float, seed: int) -> DaemonRun:
     return DaemonRun(cpu_s_per_hour=(cpu1 - cpu0) / (wall1 - wall0) * 3600.0, peak_rss_mb=peak_kb / 1024, latencies_s=())
 
 
-def can_figures(runs: int, seconds: float) -> list[Figure]:
-    can_runs = [run_can_in_process(seconds, seed) for seed in range(runs)]
+def can_figures(runs: int, seconds: float, layout_name: str = "hub") -> list[Figure]:
+    can_runs = [run_can_in_process(seconds, seed, layout_name=layout_name) for seed in range(runs)]
+    if layout_name == "per-node":
+        return [
+            Figure.of("daemon_can_per_node_cpu_s_per_h", "daemon, CAN per-node layout at 500 Hz (player thread subtracted)",
+                      "CPU s/h", [r.cpu_s_per_hour for r in can_runs], COMMAND, higher_is_better=False,
+                      target=TARGET_CPU_S_PER_H),
+        ]  # fmt: skip
     latencies = [lat for r in can_runs for lat in r.latencies_s]
+    roles = [role for role in ROLE_WHAT if any(role in (r.thread_cpu_s_per_hour or {}) for r in can_runs)]
     return [
         Figure.of("daemon_can_cpu_s_per_h", "daemon, CAN at 500 Hz (virtual bus, player thread subtracted)", "CPU s/h",
                   [r.cpu_s_per_hour for r in can_runs], COMMAND, higher_is_better=False, target=TARGET_CPU_S_PER_H,
                   note=f"aim {AIM_CPU_S_PER_H:g}"),
+        *[Figure.of(f"daemon_can_thread_{role}_cpu_s_per_h", f"  of which the {ROLE_WHAT[role]}", "CPU s/h",
+                    [(r.thread_cpu_s_per_hour or {}).get(role, 0.0) for r in can_runs], COMMAND, higher_is_better=False)
+          for role in roles],
         Figure.of("daemon_can_player_cpu_s_per_h", "the CAN player thread of (a), not the daemon's", "CPU s/h",
                   [r.player_cpu_s_per_hour or 0.0 for r in can_runs], COMMAND, higher_is_better=False),
         Figure.of("daemon_can_latency_s", "latency, a window's last sample -> decided and committed (CAN)", "s",
@@ -206,34 +306,45 @@ def recording_figures(runs: int, seconds: float) -> list[Figure]:
     ]  # fmt: skip
 
 
-def figures(runs: int = 3, seconds: float = 180.0, feed: str = "both") -> list[Figure]:
+def figures(runs: int = 3, seconds: float = 180.0, feed: str = "all") -> list[Figure]:
+    """The figures of one feed, or of all three ("all")."""
     out = []
-    if feed in ("can", "both"):
-        out += can_figures(runs, seconds)
-    if feed in ("recording", "both"):
-        out += recording_figures(runs, seconds)
+    for name in FEEDS if feed == "all" else (feed,):
+        out += recording_figures(runs, seconds) if name == "recording" else can_figures(runs, seconds, LAYOUT_OF_FEED[name])
     return out
+
+
+def single_line(run: DaemonRun, setting: str) -> str:
+    threads = ", ".join(f"{role} {cpu:.1f}" for role, cpu in sorted((run.thread_cpu_s_per_hour or {}).items(), key=lambda x: -x[1]))
+    return f"daemon CAN CPU s/h {run.cpu_s_per_hour:.1f} (player {run.player_cpu_s_per_hour:.1f}), coalesce_s {setting}; threads: {threads}"
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3, help="runs per feed (default 3)")
     parser.add_argument("--seconds", type=float, default=180.0, help="real-time seconds per run (default 180)")
-    parser.add_argument("--feed", choices=("can", "recording", "both"), default="both")
-    parser.add_argument("--single", action="store_true", help="one run of feed (a) only, its CPU s/h on one line (for profiling)")
+    parser.add_argument("--feed", choices=(*FEEDS, "all"), default="all", help="can (hub layout), per-node, recording, or all (default)")
+    parser.add_argument("--single", action="store_true", help="one run of the CAN feed only, its CPU s/h on one line (for profiling)")
+    parser.add_argument("--layout", choices=("hub", "per-node"), default="hub", help="with --single: the CAN layout")
     parser.add_argument("--coalesce-s", type=float, default=None, help="with --single: the CAN reader's coalescing (0: woken per frame)")
+    parser.add_argument("--record", action="store_true", help="append the daemon's figures to bench/results/records.json (the guard's baseline)")
+    parser.add_argument("--accept-worse", action="store_true", help="with --record: record figures that missed their target too")
     args = parser.parse_args()
     try:
         if args.single:
-            run = run_can_in_process(args.seconds, 0, coalesce_s=args.coalesce_s)
-            setting = "default" if args.coalesce_s is None else f"{args.coalesce_s:g}"
-            print(f"daemon CAN CPU s/h {run.cpu_s_per_hour:.1f} (player {run.player_cpu_s_per_hour:.1f}), coalesce_s {setting}")
+            run = run_can_in_process(args.seconds, 0, coalesce_s=args.coalesce_s, layout_name=args.layout)
+            print(single_line(run, "default" if args.coalesce_s is None else f"{args.coalesce_s:g}"))
             return 0
-        print(table(figures(args.runs, args.seconds, args.feed)))
-    except BenchError as exc:
+        measured = figures(args.runs, args.seconds, args.feed)
+        command = shlex.join(["bench/bench_daemon.py", *sys.argv[1:]])
+        outcome = guard.check(measured, command, record=args.record, accept_worse=args.accept_worse)
+    except (BenchError, guard.GuardError) as exc:
         print(f"bench_daemon: error: {exc}", file=sys.stderr)
         return 2
-    return 0
+    print(table(outcome.figures))
+    for line in outcome.messages:
+        print(line, file=sys.stderr)
+    return outcome.status
 
 
 if __name__ == "__main__":

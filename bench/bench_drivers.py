@@ -1,11 +1,21 @@
 """Benchmark of the drivers: the batch CAN decoder against cantools, and CPU per hour of 500 Hz data.
 
 Figures (median of several runs, min and max): frames/s of the compiled numpy decoder and of
-per-frame cantools decoding on the same frames, with their ratio from the same run; then the CPU
-seconds each source spends per hour of 500 Hz data: CAN over python-can's virtual bus with a
-player thread (reader and player measured separately with time.thread_time() inside each
-thread; the reader also as it was before it coalesced its wake-ups, coalesce_s = 0, as the
-baseline), serial through a real pseudo-terminal, and replay of a CSV and a candump log.
+per-frame cantools decoding on the same frames, with their ratio from the same run; the per-node
+aligner's numpy join against its frame-by-frame rules; then the CPU seconds each source spends per
+hour of 500 Hz data, live ones paced at real time by a player thread (reader and player measured
+separately with time.thread_time() inside each thread):
+
+- CAN on the socketcan kind, the gateway's path: the source reads its bus's socket in batches
+  (recvmmsg), against the same source reading the same socket through python-can's recv, a
+  select, a recvmsg and a Message per frame (how it read SocketCAN before). This kernel has no
+  AF_CAN: the socket is a UDP one carrying the kernel's struct can_frame datagrams with
+  SO_TIMESTAMPNS stamps (tests/drivers/frames.py: DatagramCanBus, whose python-can receive code
+  is SocketcanBus's own), the rest is the source as a gateway runs it.
+- CAN on python-can's virtual bus (the tests', the demo's and bench_daemon's bus): python-can's
+  recv, a Message per frame, from an in-process queue.
+- serial through a real pseudo-terminal, and replay of a CSV and a candump log.
+
 Run with `make bench-drivers` or `.venv/bin/python bench/bench_drivers.py [--runs R] [--seconds S]`.
 """
 
@@ -18,18 +28,24 @@ import tempfile
 import threading
 import time
 import tty
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import can
+import can.interfaces.socketcan
 import cantools
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+BENCH = Path(__file__).resolve().parent
+sys.path.insert(0, str(BENCH))
+sys.path.insert(0, str(BENCH.parent))
 
 from timing import Figure, table, time_interleaved  # noqa: E402
 
 from bogiemon.drivers.base import EndOfStream, HealthCounters, Source  # noqa: E402
-from bogiemon.drivers.can_decode import CanFrameDecoder  # noqa: E402
+from bogiemon.drivers.can_decode import CanFrameDecoder, NodeAligner, max_silence_s  # noqa: E402
+from bogiemon.drivers.can_frames import BusFrameReader, FrameReader  # noqa: E402
 from bogiemon.drivers.can_source import CanBusPort, CanSource  # noqa: E402
 from bogiemon.drivers.candb import load_layout, shipped_dbc_text  # noqa: E402
 from bogiemon.drivers.player import encode_instants, open_player_bus, play, write_can_log  # noqa: E402
@@ -38,6 +54,8 @@ from bogiemon.drivers.replay import open_replay  # noqa: E402
 from bogiemon.drivers.segments import SampleQueue  # noqa: E402
 from bogiemon.drivers.serial_protocol import encode_packets  # noqa: E402
 from bogiemon.drivers.serial_source import SerialSource  # noqa: E402
+from tests.drivers.frames import DatagramCanBus, DatagramSender  # noqa: E402
+from tests.drivers.test_node_aligner import FrameByFrame, as_arrays, instant_frames  # noqa: E402
 
 FS_HZ = 500.0
 COMMAND = "make bench-drivers"
@@ -84,6 +102,25 @@ def decoder_figures(runs: int, n: int) -> list[Figure]:
     return [codec.compare(baseline), decoder.compare(baseline), baseline]
 
 
+def aligner_figures(runs: int, n: int) -> list[Figure]:
+    """Node frames/s of the per-node aligner: its numpy join against its frame-by-frame rules (before)."""
+    rng = np.random.default_rng(0)
+    frames = [f for j in range(n) for f in instant_frames(j, j % 256, j / FS_HZ, rng.permutation(3).tolist())]
+    batches = [as_arrays(frames[i : i + 750]) for i in range(0, len(frames), 750)]  # 0.5 s reads at 500 Hz
+
+    def join(aligner_class: type[NodeAligner]) -> None:
+        aligner = aligner_class(256, max_silence_s(256, FS_HZ))
+        for batch in batches:
+            aligner.push(*batch)
+
+    numpy_s, per_frame_s = time_interleaved([lambda: join(NodeAligner), lambda: join(FrameByFrame)], runs)
+    per_frame = Figure.of("aligner_per_frame_frames_per_s", "per-node aligner frame by frame (before)", "frames/s",
+                          [len(frames) / t for t in per_frame_s], COMMAND)  # fmt: skip
+    joined = Figure.of("aligner_frames_per_s", "per-node aligner, numpy join of 0.5 s batches", "frames/s",
+                       [len(frames) / t for t in numpy_s], COMMAND)  # fmt: skip
+    return [joined.compare(per_frame), per_frame]
+
+
 def drain_live(source: Source, n: int, timeout_s: float) -> tuple[int, float]:
     """Read n samples in this thread; (samples, this thread's CPU seconds)."""
     cpu0, got, end = time.thread_time(), 0, time.monotonic() + timeout_s
@@ -94,14 +131,42 @@ def drain_live(source: Source, n: int, timeout_s: float) -> tuple[int, float]:
     return got, time.thread_time() - cpu0
 
 
-def cpu_can(seconds: float, layout_name: str, coalesce_s: float | None = None) -> tuple[float, float]:
-    """(reader, player) CPU seconds per second of data, CAN over the virtual bus at real time."""
+class PythonCanRecvPort(CanBusPort):
+    """The socketcan kind read as before: through python-can's recv, a Message per frame."""
+
+    def frame_reader(self, bus: can.BusABC, capacity: int) -> FrameReader:
+        return BusFrameReader(bus)
+
+
+@contextmanager
+def datagram_socketcan() -> Iterator[None]:
+    """The socketcan kind opens a DatagramCanBus (this kernel has no AF_CAN)."""
+    real = can.interfaces.socketcan.SocketcanBus
+    can.interfaces.socketcan.SocketcanBus = DatagramCanBus  # type: ignore[misc]
+    try:
+        yield
+    finally:
+        can.interfaces.socketcan.SocketcanBus = real  # type: ignore[misc]
+        DatagramCanBus.made.clear()
+
+
+def cpu_can(seconds: float, layout_name: str, path: str) -> tuple[float, float]:
+    """(reader, player) CPU seconds per second of data at real time; path: 'batched', 'python-can' or 'virtual'."""
     layout = load_layout(None, layout_name)
-    channel = f"bench-{layout_name}-{time.monotonic_ns()}"
     data = accel(int(seconds * FS_HZ))
     player_cpu: list[float] = []
-    with CanSource(CanBusPort("virtual", channel), layout, FS_HZ, coalesce_s=coalesce_s) as source:
-        bus = open_player_bus("virtual", channel)
+    with datagram_socketcan():  # the source opens its bus here
+        if path == "virtual":
+            channel = f"bench-{layout_name}-{time.monotonic_ns()}"
+            source = CanSource(CanBusPort("virtual", channel), layout, FS_HZ)
+            bus = open_player_bus("virtual", channel)
+        else:
+            port_class = CanBusPort if path == "batched" else PythonCanRecvPort
+            # 4 MiB of socket buffer asked for (the kernel caps it at net.core.rmem_max), so that a
+            # reader stalled on a shared machine does not lose frames.
+            source = CanSource(port_class("socketcan", "bench", receive_buffer_bytes=1 << 22), layout, FS_HZ)
+            bus = DatagramSender(DatagramCanBus.made[-1].address)
+    with source:
 
         def player() -> None:
             cpu0 = time.thread_time()
@@ -113,7 +178,7 @@ def cpu_can(seconds: float, layout_name: str, coalesce_s: float | None = None) -
         got, reader_cpu = drain_live(source, data.shape[0], seconds + 5)
         thread.join()
         bus.shutdown()
-    assert got == data.shape[0], f"the CAN reader got {got} of {data.shape[0]} samples"
+    assert got == data.shape[0], f"the CAN reader ({path}) got {got} of {data.shape[0]} samples: {source.counters.as_dict()}"
     return reader_cpu / seconds, player_cpu[0] / seconds
 
 
@@ -159,19 +224,29 @@ def source_figures(runs: int, seconds: float) -> list[Figure]:
     """CPU seconds per hour of 500 Hz data of each source, live ones paced at real time."""
     hour = 3600.0
     out = []
+    paths = {  # key suffix (the virtual bus keeps the key it had, for comparing runs), what
+        "batched": ("_socketcan_batched", "reader, socketcan kind, socket read in batches (recvmmsg)"),
+        "python-can": ("_socketcan_python_can_recv", "reader, socketcan kind, python-can's recv per frame (before)"),
+        "virtual": ("", "reader, virtual bus (python-can's recv)"),
+    }
     for layout_name in ("hub", "per-node"):
-        # In turn, so that the reader and its baseline see the same machine.
-        pairs = [(cpu_can(seconds, layout_name, coalesce_s=0.0), cpu_can(seconds, layout_name)) for _ in range(runs)]
-        per_frame = [woken[0] for woken, _ in pairs]
-        readers, players = [now[0] for _, now in pairs], [now[1] for _, now in pairs]
-        woken = Figure.of(f"can_{layout_name}_reader_per_frame_cpu_s_per_h",
-                          f"CAN {layout_name} reader woken per frame (coalesce_s = 0, as before)",
-                          "CPU s/h", [c * hour for c in per_frame], COMMAND, higher_is_better=False)  # fmt: skip
-        reader = Figure.of(f"can_{layout_name}_reader_cpu_s_per_h", f"CAN {layout_name} reader, virtual bus, 500 Hz",
-                           "CPU s/h", [c * hour for c in readers], COMMAND, higher_is_better=False)  # fmt: skip
-        player = Figure.of(f"can_{layout_name}_player_cpu_s_per_h", f"CAN {layout_name} player thread (not the daemon's)",
-                           "CPU s/h", [c * hour for c in players], COMMAND, higher_is_better=False)  # fmt: skip
-        out += [reader.compare(woken), woken, player]
+        # In turn, so that the readers see the same machine.
+        measured: dict[str, list[float]] = {path: [] for path in paths}
+        players: list[float] = []
+        for _ in range(runs):
+            for path in paths:
+                reader_s, player_s = cpu_can(seconds, layout_name, path)
+                measured[path].append(reader_s * hour)
+                if path == "virtual":
+                    players.append(player_s * hour)
+        figures = {
+            path: Figure.of(f"can_{layout_name}_reader{suffix}_cpu_s_per_h", f"CAN {layout_name} {what}, 500 Hz",
+                            "CPU s/h", measured[path], COMMAND, higher_is_better=False)  # fmt: skip
+            for path, (suffix, what) in paths.items()
+        }
+        player = Figure.of(f"can_{layout_name}_player_cpu_s_per_h", f"CAN {layout_name} player thread, virtual bus (not the daemon's)",
+                           "CPU s/h", players, COMMAND, higher_is_better=False)  # fmt: skip
+        out += [figures["batched"].compare(figures["python-can"]), figures["python-can"], figures["virtual"], player]
     out.append(Figure.of("serial_cpu_s_per_h", "serial source through a pty, 500 Hz, 13-byte packets", "CPU s/h",
                          [cpu_serial(seconds) * hour for _ in range(runs)], COMMAND, higher_is_better=False))  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
@@ -187,7 +262,7 @@ def source_figures(runs: int, seconds: float) -> list[Figure]:
 
 
 def figures(runs: int = 5, seconds: float = 10.0, frames: int = 20000) -> list[Figure]:
-    return decoder_figures(runs, frames) + source_figures(max(3, runs // 2), seconds)
+    return decoder_figures(runs, frames) + aligner_figures(runs, frames // 3) + source_figures(max(3, runs // 2), seconds)
 
 
 def main() -> None:

@@ -23,7 +23,7 @@ import numpy as np
 import fuzz_core
 from bogiemon.daemon.analysis import analyze_recording
 from bogiemon.daemon.config import BogiemonConfig, load_config
-from bogiemon.drivers.recording import RecordingError, read_csv_recording
+from bogiemon.drivers.recording import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, RecordingError, read_csv_recording
 
 HEADER = "time_s,a1,a2,a3"
 RATES_HZ = (500.0, 500.0, 1000.0, 200.0, 100.0, 50.0, 2000.0, 20_000.0, 10.0, 333.33, 1.0, 0.01)
@@ -89,10 +89,12 @@ def reference(raw: bytes) -> tuple[list[float], list[list[float]]] | str:
             values = [float(cell.strip()) for cell in row]
         except ValueError:
             return f"not numbers: {row}"
-        if not all(math.isfinite(v) for v in values):
+        # NaN is no reading and a time must be finite; an acceleration beyond the converter's
+        # range (infinite too) is clipped to its full scale (drivers/recording.py).
+        if any(math.isnan(v) for v in values) or not math.isfinite(values[0]):
             return "a value not finite"
         times.append(values[0])
-        accel.append(values[1:])
+        accel.append([min(max(v, MIN_ACCEL_MPS2), MAX_ACCEL_MPS2) for v in values[1:]])
     return times, accel
 
 

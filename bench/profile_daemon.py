@@ -7,6 +7,12 @@ only the thread holding the interpreter, so sleeping and waiting threads never c
 prints where the daemon's samples go: by thread (CAN source, core, service main loop) and the
 functions with the largest inclusive share. The player thread and the start-up (imports, the
 simulated data) are left out. py-spy comes with the bench extra (`make bench` installs it).
+
+`--gil` samples see Python only: C code that released the interpreter (numpy's BLAS products,
+the FFT) and threads no Python code started (OpenBLAS's workers spinning after a product) never
+count, and a regression there is invisible in the profile (issue 16's cost was: README,
+Performance). So each CPU figure comes with the CPU of every thread of the process from
+/proc (bench_daemon.py's breakdown): what the profile's shares do not cover shows there.
 Run with `.venv/bin/python bench/profile_daemon.py [--seconds S] [--runs R] [--out DIR]`.
 """
 
@@ -28,6 +34,7 @@ VARIANTS = {"before (woken per frame, coalesce_s = 0)": "0", "after (default coa
 ROLES = (("player", "run_player"), ("CAN source thread", "Pipeline._read_loop"),
          ("core thread", "Pipeline._process_loop"), ("service main loop", "Service.run"))  # fmt: skip
 CPU_LINE = re.compile(r"daemon CAN CPU s/h ([0-9.]+)")
+THREADS_LINE = re.compile(r"threads: (.*)$", re.MULTILINE)
 
 
 class ProfileError(RuntimeError):
@@ -46,12 +53,14 @@ def feed_command(seconds: float, coalesce_s: str | None) -> list[str]:
     return [*cmd, "--coalesce-s", coalesce_s] if coalesce_s is not None else cmd
 
 
-def measure_cpu_s_per_hour(seconds: float, coalesce_s: str | None) -> float:
+def measure_cpu_s_per_hour(seconds: float, coalesce_s: str | None) -> tuple[float, str]:
+    """The daemon's CPU s/h and its threads' (bench_daemon.py's line: "source 20.1, processing 3.0, ...")."""
     out = subprocess.run(feed_command(seconds, coalesce_s), capture_output=True, text=True)
     match = CPU_LINE.search(out.stdout)
     if out.returncode != 0 or match is None:
         raise ProfileError(f"the CAN feed failed ({out.returncode}): {out.stderr[-1500:]}")
-    return float(match.group(1))
+    threads = THREADS_LINE.search(out.stdout)
+    return float(match.group(1)), threads.group(1) if threads else ""
 
 
 def record(seconds: float, coalesce_s: str | None, raw_path: Path) -> float:
@@ -94,10 +103,12 @@ def summarise(raw_path: Path, top_n: int) -> Profile:
     return Profile(dict(by_role), top, daemon)
 
 
-def report(name: str, cpu_s_per_hour: list[float], profiled_cpu_s_per_hour: float, profile: Profile) -> str:
+def report(name: str, measured_runs: list[tuple[float, str]], profiled_cpu_s_per_hour: float, profile: Profile) -> str:
+    cpu_s_per_hour = [cpu for cpu, _ in measured_runs]
     measured = (f"{statistics.median(cpu_s_per_hour):.1f} s/h without the profiler (median of {len(cpu_s_per_hour)}: "
                 f"{', '.join(f'{v:.1f}' for v in cpu_s_per_hour)}), " if cpu_s_per_hour else "")  # fmt: skip
     lines = [f"## {name}: daemon CPU {measured}{profiled_cpu_s_per_hour:.1f} s/h under py-spy"]
+    lines += [f"CPU s/h by thread (/proc, run {i + 1}): {threads}" for i, (_, threads) in enumerate(measured_runs) if threads]
     total = max(profile.daemon_samples, 1)
     lines.append(f"py-spy --gil samples: {profile.daemon_samples} in the daemon's threads; "
                  + ", ".join(f"{role} {n}" for role, n in sorted(profile.samples_by_role.items())))  # fmt: skip

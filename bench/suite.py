@@ -6,8 +6,13 @@ and the sources (bench_drivers), the simulator (bench_simulator), the whole daem
 Dask workers (bench_fleet), then prints one Markdown table
 and writes JSON with the figures, the machine's CPU model, the load average before and after,
 the versions of Python and the libraries, the date and the git commit.
-Takes about 40 minutes (the daemon's real-time runs and the study); --quick takes about 8.
-Run with `make bench` or `.venv/bin/python bench/suite.py [--quick] [--only PART,...] [--json PATH]`.
+The daemon's figures are guarded (bench/guard.py): each must stay within 25 % of the last figure
+recorded on this machine class in bench/results/records.json (committed), and within its absolute
+budget; the table says MISSED and the suite exits 1 otherwise. `--record` appends this run's
+figures there: an explicit step, refused for a figure that missed unless `--accept-worse` too.
+Takes about 50 minutes (the daemon's real-time runs and the study); --quick takes about 10.
+Run with `make bench` or
+`.venv/bin/python bench/suite.py [--quick] [--only PART,...] [--json PATH] [--record [--accept-worse]]`.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import bench_drivers  # noqa: E402
 import bench_fleet  # noqa: E402
 import bench_simulator  # noqa: E402
 import bench_study  # noqa: E402
+import guard  # noqa: E402
 from timing import Figure, table  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,18 +52,11 @@ PARTS: dict[str, tuple[Callable[..., list[Figure]], dict[str, Any], dict[str, An
     "drivers": (bench_drivers.figures, {"runs": 5, "seconds": 10.0}, {"runs": 3, "seconds": 3.0}),
     "simulator": (bench_simulator.figures, {"runs": 5, "duration_s": 120.0, "batch_n": 16},
                   {"runs": 3, "duration_s": 20.0, "batch_n": 4}),
-    "daemon": (bench_daemon.figures, {"runs": 3, "seconds": 240.0}, {"runs": 1, "seconds": 150.0}),
+    "daemon": (bench_daemon.figures, {"runs": 3, "seconds": 240.0}, {"runs": 1, "seconds": 150.0}),  # the three feeds
     "study": (bench_study.figures, {"runs": 1}, {"runs": 1, "quick": True}),
     "fleet": (bench_fleet.figures, {"runs": 5, "wagons": 16, "days": 2, "recordings": 2},
               {"runs": 1, "wagons": 4, "days": 1, "recordings": 2}),
 }  # fmt: skip
-
-
-def cpu_model() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.lower().startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return platform.processor() or "unknown"
 
 
 def load_average() -> tuple[float, float, float]:
@@ -94,8 +93,7 @@ def context(started: datetime, load_before: tuple[float, float, float], quick: b
         "command": " ".join(["bench/suite.py", *sys.argv[1:]]),
         "quick": quick,
         "machine": {
-            "cpu_model": cpu_model(),
-            "cores": os.cpu_count(),
+            **asdict(guard.machine_class()),
             "load_average_before": load_before,
             "load_average_after": load_average(),
             "kernel": platform.release(),
@@ -110,7 +108,7 @@ def header(info: dict[str, Any], wall_min: float) -> str:
     m, g = info["machine"], info["git"]
     return "\n".join([
         f"# bogiemon benchmark suite, {info['date']}, {wall_min:.0f} min{' (--quick)' if info['quick'] else ''}",
-        f"# {m['cpu_model']}, {m['cores']} cores; load average before {m['load_average_before']}, after {m['load_average_after']}",
+        f"# {m['arch']}, {m['cpu_model']}, {m['cores']} cores (the guard's machine class); load average before {m['load_average_before']}, after {m['load_average_after']}",
         f"# commit {g['commit'][:12]}{' with uncommitted changes' if g['uncommitted_changes'] else ''}; "
         + ", ".join(f"{k} {v}" for k, v in info["versions"].items()),
         f"# {info['daemon']}",
@@ -122,6 +120,8 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="short runs, `study --quick`: to try the suite out, not to quote")
     parser.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts (default all: {','.join(PARTS)})")
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON, help=f"where to write the JSON (default {DEFAULT_JSON.relative_to(REPO)})")
+    parser.add_argument("--record", action="store_true", help="append the daemon's figures to bench/results/records.json (the guard's baseline)")
+    parser.add_argument("--accept-worse", action="store_true", help="with --record: record figures that missed their target too")
     args = parser.parse_args()
     wanted = [p.strip() for p in args.only.split(",") if p.strip()]
     unknown = [p for p in wanted if p not in PARTS]
@@ -139,12 +139,19 @@ def main() -> int:
             print(f"suite: error: {name}: {exc}", file=sys.stderr)
             return 2
     info = context(started, load_before, args.quick)
+    try:
+        outcome = guard.check(figures, info["command"], record=args.record, accept_worse=args.accept_worse, quick=args.quick)
+    except guard.GuardError as exc:
+        print(f"suite: error: {exc}", file=sys.stderr)
+        return 2
     print(header(info, (time.monotonic() - t0) / 60.0))
-    print(table(figures))
+    print(table(outcome.figures))
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({**info, "figures": [asdict(f) for f in figures]}, indent=2) + "\n")
+    args.json.write_text(json.dumps({**info, "figures": [asdict(f) for f in outcome.figures]}, indent=2) + "\n")
     print(f"# figures written to {args.json}")
-    return 0
+    for line in outcome.messages:
+        print(f"# {line}")
+    return outcome.status
 
 
 if __name__ == "__main__":

@@ -1,18 +1,22 @@
-"""Offline analysis of a recording: the streaming core run over a whole file, window by window."""
+"""Offline analysis of a recording: the streaming core run over a whole file, window by window.
+
+The recording is read as it is analysed (drivers/recording.py: a chunk of rows at a time), so
+memory stays flat for recordings of any length; a bad row found on the way ends the analysis
+with a RecordingError after the windows before it were given.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+import queue
+import threading
+from collections.abc import Generator, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.detection import IndicatorStream, ProcessingSettings, WindowIndicators
-from bogiemon.drivers.recording import Recording, RecordingError, read_csv_recording
-
-# Feed the core a minute at a time: memory stays flat for recordings of any length.
-CHUNK_S = 60.0
+from bogiemon.drivers.recording import Recording, RecordingError, RecordingReader, open_recording_reader
 
 
 def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -> ProcessingSettings:
@@ -31,29 +35,72 @@ def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -
         ) from None
 
 
-def open_recording(path: str | Path, config: BogiemonConfig) -> Recording:
-    """Read a recording and check it holds at least one window at its own sample rate."""
-    probe = read_csv_recording(path)
-    settings = recording_settings(path, probe.fs_hz, config)
-    if probe.n_samples < settings.window_n:
-        # Re-read through the checked path so the message is the recording module's own.
-        return read_csv_recording(path, min_samples=settings.window_n)
-    return probe
+def open_recording(path: str | Path, config: BogiemonConfig) -> RecordingReader:
+    """Open a recording (CSV, .csv.gz, Parquet) and check the config can analyse it: its rate, and
+    at least one window of it (a bad row in a file too short is named first)."""
+    reader = open_recording_reader(path)
+    settings = recording_settings(path, reader.fs_hz, config)
+    reader.require_samples(settings.window_n)
+    return reader
 
 
 def analyze_recording(
-    recording: Recording, config: BogiemonConfig, clip_level_mps2: float | None = None
+    recording: RecordingReader | Recording, config: BogiemonConfig, clip_level_mps2: float | None = None
 ) -> Iterator[WindowIndicators]:
     """The indicators of every full window of the recording, in time order.
 
     Clipped samples are counted at clip_level_mps2 (default: the config's health.clip_level_mps2).
+    A RecordingReader raises RecordingError at a bad row, after the windows that end before it.
     """
     settings = recording_settings(recording.path, recording.fs_hz, config)
     clip = config.health.clip_level_mps2 if clip_level_mps2 is None else clip_level_mps2
-    stream = IndicatorStream(settings, config.bogie_geometry(), float(recording.time_s[0]), clip)
-    chunk_n = max(1, int(CHUNK_S * recording.fs_hz))
-    for i in range(0, recording.n_samples, chunk_n):
-        yield from stream.process(recording.accel_mps2[i : i + chunk_n])
+    stream = IndicatorStream(settings, config.bogie_geometry(), recording.start_s, clip)
+    for _, accel_mps2 in read_ahead(recording.chunks()):
+        yield from stream.process(accel_mps2)
+
+
+T = TypeVar("T")
+
+
+def read_ahead(items: Generator[T, None, None], depth: int = 1) -> Iterator[T]:
+    """items, produced in a thread of their own up to `depth` ahead of the consumer: a recording's
+    next chunk is read and parsed (pyarrow, without the GIL) while the core works on this one.
+    What the producer raises is raised here, in order; stopping early stops and closes it."""
+    ready: queue.Queue[tuple[T | None, BaseException | None, bool]] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(entry: tuple[T | None, BaseException | None, bool]) -> bool:
+        while not stop.is_set():
+            try:
+                ready.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if not put((item, None, False)):
+                    return
+            put((None, None, True))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer, raised there
+            put((None, exc, True))
+
+    producer = threading.Thread(target=produce, name="bogiemon-read-ahead", daemon=True)
+    producer.start()
+    try:
+        while True:
+            item, error, done = ready.get()
+            if error is not None:
+                raise error
+            if done:
+                return
+            yield item  # type: ignore[misc]
+    finally:
+        stop.set()
+        producer.join()
+        items.close()
 
 
 def indicators_as_dict(ind: WindowIndicators) -> dict[str, Any]:

@@ -11,8 +11,6 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
-import os
-import stat
 import tomllib
 from collections.abc import Callable, Sequence
 from importlib import resources
@@ -50,6 +48,7 @@ from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import Baseline, Levels, LoadDiscriminant, LoadModel, LoadSignature, shipped_models
 from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Method
 from bogiemon.detection import BogieGeometry, ProcessingSettings
+from bogiemon.drivers.files import FileKind, read_untrusted
 
 if TYPE_CHECKING:
     from bogiemon.daemon.recorder import RecorderSettings
@@ -85,6 +84,12 @@ DEFAULT_CONFIG_NAME = "bogiemon.toml"
 # A config is a page of hand-written TOML (the shipped one is 15 KiB): a file larger than this is
 # not one, and reading it whole (a log named by mistake, /dev/zero) must not exhaust memory.
 MAX_CONFIG_BYTES = 1 << 20
+CONFIG_FILE = FileKind(
+    name="config file",
+    description="a config is a TOML text file",
+    max_bytes=MAX_CONFIG_BYTES,
+    too_large="a config is a page of TOML: is this the right file?",
+)
 
 
 class BogiemonConfig(Section):
@@ -256,6 +261,7 @@ class BogiemonConfig(Section):
             load_model=self.load_model() if load is LoadSetting.AUTO else None,
             load_states=self.load_signatures(),
             load_discriminant=self.load_discriminant() if load is LoadSetting.AUTO else None,
+            not_judged_after_s=3600.0 * self.decision.not_judged_after_h,
         )
 
     def recorder_settings(self) -> RecorderSettings | None:
@@ -274,6 +280,7 @@ class BogiemonConfig(Section):
             periodic_every_h=r.periodic_every_h,
             periodic_s=r.periodic_s,
             max_total_bytes=r.max_total_bytes,
+            format=r.format,
             reserve_bytes=event_store_reserve_bytes(status_outbox_messages),
             window_s=self.processing.window_s,
             hop_s=self.processing.hop_s,
@@ -365,41 +372,12 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 
 def _read_text(path: Path) -> str:
-    """A config file's text: a regular file of at most MAX_CONFIG_BYTES, UTF-8."""
-    try:
-        # O_NONBLOCK: a FIFO named by mistake must not block the open; it is refused below.
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the config file: {exc.strerror or exc}") from None
-    except ValueError:  # a NUL in the name
-        raise ConfigError(f"{_short(str(path))}: not a file name") from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            kind = "a folder" if stat.S_ISDIR(mode) else "not a regular file"
-            raise ConfigError(f"{path}: {kind}; a config is a TOML text file")
-        raw = _read_at_most(fd, MAX_CONFIG_BYTES + 1)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the config file: {exc.strerror or exc}") from None
-    finally:
-        os.close(fd)
-    if len(raw) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES // 1024} KiB; a config is a page of TOML: is this the right file?")
+    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8."""
+    raw = read_untrusted(path, CONFIG_FILE, ConfigError)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}); a config is TOML") from None
-
-
-def _read_at_most(fd: int, limit: int) -> bytes:
-    chunks, size = [], 0
-    while size < limit:
-        chunk = os.read(fd, min(limit - size, 1 << 16))
-        if not chunk:
-            break
-        chunks.append(chunk)
-        size += len(chunk)
-    return b"".join(chunks)
 
 
 def _parse_toml(text: str, source: str) -> dict[str, Any]:

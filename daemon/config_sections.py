@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, field_val
 
 from bogiemon.daemon.events import INDICATOR_FIELDS
 from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Method
+from bogiemon.drivers.recording import RecordingFormat
 from bogiemon.detection import Corner, ProcessingSettings
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES
 
@@ -195,6 +196,7 @@ class DecisionConfig(Section):
     confirm_k: int = Field(3, ge=1)
     confirm_n: int = Field(5, ge=1, le=100)
     clear_after_windows: int = Field(6, ge=1, le=100_000)
+    not_judged_after_h: float = Field(2.0, gt=0, le=10_000)
     thresholds: dict[LoadState, dict[IndicatorName, ThresholdConfig]] = Field(default_factory=lambda: DEFAULT_THRESHOLDS)
     # The wagon's calibrated baselines (none shipped: without one a load is judged against the
     # fleet's population baseline, config/fused_model.toml).
@@ -473,6 +475,7 @@ class RecorderConfig(Section):
     # One periodic recording is held in memory until written: an hour at 500 Hz is 21 MiB.
     periodic_s: float = Field(300.0, gt=0, le=3600)
     max_total_bytes: int = Field(512 * MIB, ge=MIB, le=2**50)
+    format: RecordingFormat = RecordingFormat.CSV_GZ
 
     @model_validator(mode="after")
     def _periodic_fits(self) -> RecorderConfig:

@@ -56,9 +56,22 @@ mean averages half an hour of running, and its healthy spread is C times the rat
 alarm level to the window score's (both set on the same healthy fleet). Per coupling (pitch-roll,
 bounce-roll), the bands' shifts in units of their healthy spread are summed, and the sum's
 standard score T (over its standard deviation, from the same covariance: the bands are
-correlated) says how clear its sign is. A corner is named only when both |T| reach MIN_SCORE and
-no read band contradicts its coupling's sign by more than CONTRADICTION standard deviations;
-otherwise it is "unknown".
+correlated) says how clear its sign is.
+
+THE PAIR. The pitch-roll sign is x_c y_c whatever the sign of the change (above): it fixes the
+diagonal the corner lies on, {leading-left, trailing-right} or {leading-right, trailing-left}. The
+bounce-roll sign, y_c for a softer corner, would pick one of the two, but on a Y25 a broken front
+coil makes its corner stiffer in effect (its Lenoir damper grips more) and gives the bounce-roll
+sign of a broken rear coil at the diagonally opposite corner: measured on both wagon models' fleets
+(lab/robust/observability.py, `--signs`: every band from 2 to 64 Hz, at full load and in tare but
+for two band-pairs where the front coil's shift is small), and met on the independently built
+model too, where every wrong corner named was exactly the diagonal one. No rule on these signs
+can be right for the front and the rear coils alike, so the diagnosis names the pair when the
+pitch-roll sign is clear (|T_pr| at least MIN_SCORE, no read band against it by more than
+CONTRADICTION standard deviations), "unknown" otherwise, and never one corner alone; the
+bounce-roll sign stays in best_match as the corner that softened if it did. What tells the two
+corners of a pair apart is a measurement these three accelerometers do not make (the static sag
+at each axle box, or the dampers' force).
 """
 
 from __future__ import annotations
@@ -84,29 +97,36 @@ MIN_SCORE = 2.5
 # A read band whose shift lies this many of its standard deviations against its coupling's sign
 # contradicts it: the bands disagree and the corner is unknown.
 CONTRADICTION = 1.0
+# The largest confidence a pair is given: the share of confirmed broken springs whose pair held the
+# broken coil's corner on the training fleets of both wagon models (lab/robust/diagnosis_check.py
+# --pairs), a prior that keeps a clear sign from reading as a certainty about another wagon.
+PAIR_CONFIDENCE_MAX = 0.95
 
 
 @dataclass(frozen=True)
 class Diagnosis:
     """What the couplings say about a confirmed fault (an event's "diagnosis").
 
-    corner: the corner that got softer in effect (module docstring), or "unknown".
+    corners: the corners it could be, as the signs fix them: () unknown; a diagonal pair (the
+        pitch-roll sign alone: THE PAIR in the module docstring), the corner that softened in
+        effect first; never one corner alone (the bounce-roll sign that would pick it is the one a
+        broken front coil turns round: measured, module docstring).
     kind: always "unknown" from these couplings (module docstring); the field stays for the schema.
-    corner_confidence: the probability that both signs were read right, Phi(|T_pr|) Phi(|T_br|)
-        with Phi the standard normal distribution: the chance that healthy scatter of the stated
-        spread alone would not flip either sign. It is of the likeliest reading (best_match) also
-        when the corner is unknown (bands that disagree can leave it high), assumes the corner
-        softened, and is 0 without evidence.
+    corner_confidence: the probability that the fault's corner is among `corners`: that healthy
+        scatter of the stated spread did not flip the pitch-roll sign, Phi(|T_pr|), never above
+        PAIR_CONFIDENCE_MAX (what the pair was measured to hold on the training fleets, so that a
+        sign read clearly is never a certainty about the wagon). 0 without evidence; for an
+        unknown corner, that of the likeliest pair (bands that disagree can leave it high).
     kind_confidence: 0.0 (no kind is told).
-    best_match: the statistic in words, e.g. "pitch-roll +4.1, bounce-roll +3.2 sd at 4-8, 16-32
-        Hz: leading-left if softer" ("" without evidence).
-    cosine: the agreement of the read bands with the named (or, if unknown, the likeliest)
-        corner's sign pattern: the cosine between the bands' standard scores and those signs,
-        1 when every band has the predicted sign, below 0 when most disagree.
+    best_match: the statistic in words, e.g. "pitch-roll +4.1, bounce-roll +3.2 sd at 4-8 Hz:
+        leading-left or trailing-right (leading-left if softer)" ("" without evidence).
+    cosine: the agreement of the read bands with the likeliest corner's sign pattern: the cosine
+        between the bands' standard scores and those signs, 1 when every band has the predicted
+        sign, below 0 when most disagree.
     windows: how many windows' shifts were averaged (1 for the trend's mean).
     """
 
-    corner: str
+    corners: tuple[Corner, ...]
     kind: str
     corner_confidence: float
     kind_confidence: float
@@ -114,9 +134,15 @@ class Diagnosis:
     cosine: float
     windows: int
 
+    @property
+    def corner(self) -> str:
+        """The corners in words: "unknown", or "leading-left or trailing-right"."""
+        return " or ".join(c.value for c in self.corners) if self.corners else UNKNOWN
+
     def as_dict(self) -> dict[str, object]:
         return {
             "corner": self.corner,
+            "corners": [c.value for c in self.corners],
             "kind": self.kind,
             "corner_confidence": round(self.corner_confidence, 3),
             "kind_confidence": round(self.kind_confidence, 3),
@@ -126,7 +152,7 @@ class Diagnosis:
         }
 
 
-NO_EVIDENCE = Diagnosis(UNKNOWN, UNKNOWN, 0.0, 0.0, "", 0.0, 0)
+NO_EVIDENCE = Diagnosis((), UNKNOWN, 0.0, 0.0, "", 0.0, 0)
 
 
 def softer_signs(corner: Corner) -> tuple[int, int]:
@@ -175,8 +201,13 @@ def _phi(t: float) -> float:
     return 0.5 * (1.0 + math.erf(t / math.sqrt(2.0)))
 
 
+def diagonal_of(corner: Corner) -> Corner:
+    """The corner across the frame's centre from corner (x -> -x, y -> -y)."""
+    return next(c for c in Corner if c.x_sign == -corner.x_sign and c.y_sign == -corner.y_sign)
+
+
 def judge_signs(evidence: SignEvidence, windows: int) -> Diagnosis:
-    """The corner from sign evidence, or unknown (module docstring: MIN_SCORE, CONTRADICTION)."""
+    """The diagonal pair from sign evidence, or unknown (module docstring: MIN_SCORE, CONTRADICTION)."""
     t_pr, t_br = evidence.score_pr, evidence.score_br
     pr_sign, br_sign = (1 if t_pr >= 0 else -1), (1 if t_br >= 0 else -1)
     likeliest = corner_of(pr_sign, br_sign)
@@ -184,14 +215,19 @@ def judge_signs(evidence: SignEvidence, windows: int) -> Diagnosis:
     predicted = np.array([pr_sign] * len(evidence.band_scores_pr) + [br_sign] * len(evidence.band_scores_br), dtype=np.float64)
     norm = float(np.linalg.norm(scores))
     cosine = float(scores @ predicted) / (norm * math.sqrt(predicted.size)) if norm > 0 else 0.0
-    against = scores * predicted
-    clear = min(abs(t_pr), abs(t_br)) >= MIN_SCORE and bool(np.all(against > -CONTRADICTION))
+    pr_against = np.array(evidence.band_scores_pr) * pr_sign
+    # The pair needs the pitch-roll sign alone, clear and not contradicted by a band it reads.
+    clear = abs(t_pr) >= MIN_SCORE and bool(np.all(pr_against > -CONTRADICTION))
+    pair = (likeliest, diagonal_of(likeliest))
     bands = ", ".join(band_label(b).removesuffix(" Hz") for b in evidence.bands)
-    described = f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz: {likeliest.value} if softer"
+    described = (
+        f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz: "
+        f"{pair[0].value} or {pair[1].value} ({likeliest.value} if softer)"
+    )
     return Diagnosis(
-        corner=likeliest.value if clear else UNKNOWN,
+        corners=pair if clear else (),
         kind=UNKNOWN,
-        corner_confidence=_phi(abs(t_pr)) * _phi(abs(t_br)),
+        corner_confidence=min(_phi(abs(t_pr)), PAIR_CONFIDENCE_MAX),
         kind_confidence=0.0,
         best_match=described,
         cosine=cosine,

@@ -20,6 +20,8 @@ class EventKind(enum.Enum):
     CLEARED = "CLEARED"  # a suspicion or an alarm ended after enough clean windows
     SENSOR_FAULT = "SENSOR_FAULT"  # a sensor is dead, stuck, clipping, noisy or dropping out
     SENSOR_CLEARED = "SENSOR_CLEARED"  # the sensors are healthy again
+    NOT_JUDGED = "NOT_JUDGED"  # hours of running not judged: unlike the commissioning (daemon/coverage.py)
+    JUDGED_AGAIN = "JUDGED_AGAIN"  # a window is judged again after a NOT_JUDGED
 
 
 class Severity(enum.Enum):
@@ -42,6 +44,8 @@ DEFAULT_SEVERITY = {
     EventKind.CLEARED: Severity.INFO,
     EventKind.SENSOR_FAULT: Severity.WARNING,
     EventKind.SENSOR_CLEARED: Severity.INFO,
+    EventKind.NOT_JUDGED: Severity.WARNING,
+    EventKind.JUDGED_AGAIN: Severity.INFO,
 }
 
 

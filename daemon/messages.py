@@ -108,7 +108,9 @@ class EventMessage(_Message):
     seq: Seq  # the event's number in this wagon's event store: increases in commit order
     event_id: Name  # unique; a duplicate delivery carries the same one
     time_s: UnixTime  # end of the window that caused the event, Unix seconds (the source's clock)
-    kind: Literal["SUSPECTED", "CONFIRMED", "CLEARED", "SENSOR_FAULT", "SENSOR_CLEARED"]
+    # NOT_JUDGED and JUDGED_AGAIN since 2026-12: an older reader refuses them as outside the schema
+    # (one line, counted) and reads every other event on (docs/mqtt.md).
+    kind: Literal["SUSPECTED", "CONFIRMED", "CLEARED", "SENSOR_FAULT", "SENSOR_CLEARED", "NOT_JUDGED", "JUDGED_AGAIN"]
     severity: Literal["info", "warning", "alarm"]
     config_hash: Annotated[str, StringConstraints(max_length=128)]
     indicators: Indicators  # the values that fired (null: not finite)
@@ -159,6 +161,12 @@ class OutboxStatus(_Message):
     dropped_status: Count
 
 
+class CoverageStatus(_Message):
+    not_judged: bool  # a NOT_JUDGED is in force: running left unjudged for long (unlike the commissioning)
+    unjudged_running_s: Annotated[float, Field(ge=0, le=TIME_S_MAX, allow_inf_nan=False)]  # since the last judged window
+    last_judged_s: UnixTime | None  # the end of the last judged window (null: none yet)
+
+
 class StatusMessage(_Message):
     """The periodic status, on {prefix}/{wagon_id}/status (QoS 1, retained)."""
 
@@ -170,6 +178,8 @@ class StatusMessage(_Message):
     window: LatestWindow | None  # null until the first window is complete
     counters: Annotated[dict[ShortName, Count], Field(max_length=MAX_ENTRIES)]  # the monitor's, since the daemon started
     outbox: OutboxStatus
+    # How much running went unjudged (daemon/coverage.py); absent from gateways before 2026-12.
+    coverage: CoverageStatus | None = None
 
 
 def dump(message: _Message) -> str:

@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
+from bogiemon.daemon.coverage import CoverageState
 from bogiemon.daemon.decision import DecisionState
 from bogiemon.daemon.vocabulary import Mode
 from bogiemon.daemon.events import Event
@@ -127,9 +128,10 @@ class Monitor:
         saved = store.get_state(STATE_KEY) or {}
         try:
             decision, health = DecisionState.from_dict(saved.get("decision")), HealthState.from_dict(saved.get("health"))
+            coverage = CoverageState.from_dict(saved.get("coverage"))
         except (KeyError, ValueError, TypeError, AttributeError) as exc:  # written by something else than a monitor
             raise StoreError(f"{store.path}: the saved monitor state does not decode ({exc!r}); move the store aside to start afresh") from None
-        self._judge = WindowJudge(settings, decision, health)
+        self._judge = WindowJudge(settings, decision, health, coverage)
         self._windows = self._block_windows(settings)  # daemon/windowing.py's rules, shared with fleet/
         self.settings = settings
 
@@ -140,6 +142,11 @@ class Monitor:
     @property
     def mode(self) -> Mode:
         return self._judge.mode
+
+    @property
+    def coverage(self) -> CoverageState:
+        """How much running went unjudged since the last judged window, and whether NOT_JUDGED is in force."""
+        return self._judge.coverage.state
 
     @property
     def sensor_reported(self) -> dict[str, list[str]]:
@@ -166,7 +173,7 @@ class Monitor:
 
     def state_dict(self) -> dict[str, Any]:
         j = self._judge
-        return {"decision": j.decider.state.as_dict(), "health": j.health.state.as_dict()}
+        return {"decision": j.decider.state.as_dict(), "health": j.health.state.as_dict(), "coverage": j.coverage.state.as_dict()}
 
     def save_state(self) -> None:
         """Commit the decision state, with any events still held. Raises StoreWriteError when the

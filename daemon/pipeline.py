@@ -17,6 +17,7 @@ from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.ringbuffer import BlockRing, RingClosed
 from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.base import EndOfStream, Source
+from bogiemon.drivers.recording import RecordingError
 
 READ_TIMEOUT_S = 0.5
 
@@ -63,6 +64,12 @@ class Pipeline:
                 try:
                     block = self.source.read(READ_TIMEOUT_S)
                 except EndOfStream:
+                    break
+                except RecordingError as exc:
+                    # A recording that turns out bad further in (a streaming read finds a bad row
+                    # late): the file's fault, not a bug. The windows before it were judged;
+                    # whoever runs the pipeline names the file (replay: one line, exit 2).
+                    self.error = exc
                     break
                 if block is None:
                     continue

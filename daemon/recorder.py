@@ -27,7 +27,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +36,8 @@ from numpy.typing import NDArray
 from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.logs import get_logger
 from bogiemon.drivers.base import Block
-from bogiemon.drivers.recording import write_csv_recording
+from bogiemon.drivers.atomic import final_name_of, write_atomically
+from bogiemon.drivers.recording import RecordingFormat, write_recording
 
 if TYPE_CHECKING:
     from bogiemon.daemon.verdict import WindowVerdict
@@ -55,8 +55,7 @@ REASONS = {EventKind.SUSPECTED: "suspected", EventKind.CONFIRMED: "confirmed"}
 PERIODIC = "periodic"
 # The recorder's own files, and only they, count towards the cap and are ever deleted; a name is
 # the UTC time of its first sample, so name order is time order.
-NAME_PATTERN = re.compile(r"\d{8}T\d{6}Z_(?:suspected|confirmed|periodic)(?:-\d+)?\.csv\.gz")
-_TEMPORARY_PATTERN = re.compile(r"\." + NAME_PATTERN.pattern)
+NAME_PATTERN = re.compile(r"\d{8}T\d{6}Z_(?:suspected|confirmed|periodic)(?:-\d+)?(?:\.csv\.gz|\.parquet)")
 _STAMP_FORMAT = "%Y%m%dT%H%M%SZ"
 # Slack when counting whole hops between two window times (float sums of sample periods).
 _HOP_SLACK = 1e-6
@@ -99,15 +98,21 @@ WriteRecording = Callable[[Path, NDArray[np.float64], NDArray[np.float32]], None
 _DISK_LOCK = threading.Lock()
 
 
-def recording_bound_bytes(time_s: NDArray[np.float64], accel_mps2: NDArray[np.floating]) -> int:
-    """An upper bound of the size of the .csv.gz that drivers/recording.py writes for these samples.
+def recording_bound_bytes(time_s: NDArray[np.float64], accel_mps2: NDArray[np.floating], form: RecordingFormat = RecordingFormat.CSV_GZ) -> int:
+    """An upper bound of the size of the recording drivers/recording.py writes for these samples.
 
+    Parquet: four float64 columns of the samples as they are (8 bytes a value when neither the
+    dictionary nor zstd helps: pyarrow then writes them plain, and zstd's frame adds at most a few
+    bytes a 128 KiB block), plus 64 KiB for the footer and the pages' headers. CSV:
     The text: each value "%.6f" is its sign (of -0.0 too), the digits of its whole part (at most
     those of floor(|x|) + 1, rounding included), a point and 6 decimals, then a comma or a newline
     ("nan", "inf" and "-inf" take at most 4). Deflate expands incompressible text by at most 5 bytes
     a 16 KiB block, and gzip adds 18 bytes (zlib's technical details): counted here as 8 bytes a
     16 KiB block and 64. About 2.9 times what a bogie's samples compress to (docs/recorder.md).
     """
+    if form is RecordingFormat.PARQUET:
+        raw_bytes = 4 * 8 * time_s.shape[0]
+        return raw_bytes + raw_bytes // 4096 + 65536
     text_bytes = _CSV_HEADER_BYTES
     for start in range(0, time_s.shape[0], _BOUND_CHUNK_ROWS):  # in chunks: an hour at 500 Hz is 1.8 M rows
         rows = slice(start, start + _BOUND_CHUNK_ROWS)
@@ -131,6 +136,7 @@ class RecorderSettings:
     periodic_every_h: float = 0.0  # 0: no periodic recordings
     periodic_s: float = 300.0
     max_total_bytes: int = 512 * MIB
+    format: RecordingFormat = RecordingFormat.CSV_GZ
     reserve_bytes: int = DEFAULT_RESERVE_BYTES  # free space on the folder's file system the recordings never take
     window_s: float = 120.0
     hop_s: float = 10.0
@@ -232,7 +238,8 @@ class Recorder:
     def __init__(self, settings: RecorderSettings, queue_size: int = QUEUE_RECORDINGS, write: WriteRecording | None = None) -> None:
         self.settings = settings
         self.counters = RecorderCounters()
-        self._write_recording: WriteRecording = write or partial(write_csv_recording, fsync=True)  # type: ignore[assignment]
+        # The writer takes the format from the name (the temporary ends as the final name does).
+        self._write_recording: WriteRecording = write or write_recording  # type: ignore[assignment]
         self._log = get_logger(component="recorder")
         self._ring: SampleRing | None = None
         self._judged_starts: deque[float] = deque(maxlen=settings.confirm_n)  # of the stretch's last judged windows
@@ -387,7 +394,10 @@ class Recorder:
         try:
             directory.mkdir(parents=True, exist_ok=True)
             with os.scandir(directory) as entries:
-                stale = [e.name for e in entries if _TEMPORARY_PATTERN.fullmatch(e.name) and e.is_file(follow_symlinks=False)]
+                stale = [
+                    e.name for e in entries
+                    if NAME_PATTERN.fullmatch(final_name_of(e.name) or "") and e.is_file(follow_symlinks=False)
+                ]  # fmt: skip
             for name in stale:
                 (directory / name).unlink(missing_ok=True)
                 self._log.info("deleted a recording left half-written", path=str(directory / name))
@@ -414,8 +424,7 @@ class Recorder:
 
     def _write(self, recording: PendingRecording) -> None:
         directory = self.settings.directory
-        path = directory / f"{recording.file_stem()}.csv.gz"
-        temporary: Path | None = None
+        path = directory / f"{recording.file_stem()}{self.settings.format.suffix}"
         with _DISK_LOCK:  # one writer on the disk: two recorders live during a reload
             try:
                 directory.mkdir(parents=True, exist_ok=True)  # again: it may have been removed since
@@ -423,22 +432,16 @@ class Recorder:
                 if not self._make_room(directory, recording, time_s):
                     return
                 path = self._free_name(directory, recording.file_stem())
-                temporary = path.with_name(f".{path.name}")  # an uploader skips names beginning with '.'
-                self._write_recording(temporary, time_s, recording.accel_mps2)
-                os.replace(temporary, path)
-                _fsync_directory(directory)  # the rename itself survives a power cut
+                # Whole or not at all (drivers/atomic.py): a temporary the writer leaves on a failing
+                # disk is removed there, or at the next start (_prepare_directory).
+                write_atomically(path, lambda temporary: self._write_recording(temporary, time_s, recording.accel_mps2))
                 size = path.stat().st_size
             except OSError as exc:
                 self.counters.write_errors += 1
                 self._log.error(
-                    "cannot write a recording, it is lost", path=str(temporary or path), reason=recording.reason,
+                    "cannot write a recording, it is lost", path=str(path), reason=recording.reason,
                     error=exc.strerror or str(exc), write_errors=self.counters.write_errors,
                 )  # fmt: skip
-                try:
-                    if temporary is not None:  # never the final name: that may be an earlier recording's
-                        temporary.unlink(missing_ok=True)
-                except OSError:
-                    pass  # the same failing disk: _prepare_directory removes it at the next start
                 return
             if recording.reason == PERIODIC:
                 self.counters.periodic_written += 1
@@ -456,7 +459,7 @@ class Recorder:
         """Whether the recording fits above the reserve, once the oldest recordings that make room
         for it are deleted; the bound of its size is taken, the written file may only be smaller."""
         block_bytes = os.statvfs(directory).f_frsize or 4096
-        bound_bytes = recording_bound_bytes(time_s, recording.accel_mps2)
+        bound_bytes = recording_bound_bytes(time_s, recording.accel_mps2, self.settings.format)
         needed_bytes = -(-bound_bytes // block_bytes) * block_bytes + FILE_SLACK_BYTES
         free_bytes = self._evict(directory, needed_bytes)
         if free_bytes - needed_bytes >= self.settings.reserve_bytes:
@@ -480,13 +483,13 @@ class Recorder:
     def _evict(self, directory: Path, needed_bytes: int) -> int:
         return _evict(directory, self.settings.reserve_bytes, needed_bytes, self.counters, self._log)
 
-    @staticmethod
-    def _free_name(directory: Path, stem: str) -> Path:
+    def _free_name(self, directory: Path, stem: str) -> Path:
         """<stem>.csv.gz, or <stem>-2.csv.gz, -3, ... when a recording of that second exists."""
-        name, n = f"{stem}.csv.gz", 1
-        while (directory / name).exists() or (directory / f".{name}").exists():
+        suffix = self.settings.format.suffix
+        name, n = f"{stem}{suffix}", 1
+        while (directory / name).exists():
             n += 1
-            name = f"{stem}-{n}.csv.gz"
+            name = f"{stem}-{n}{suffix}"
         return directory / name
 
     def _keep_under_cap(self, directory: Path, keep: str) -> None:
@@ -605,9 +608,3 @@ def _own_files(directory: Path) -> list[tuple[str, int, int]]:
     return sorted(files)
 
 
-def _fsync_directory(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

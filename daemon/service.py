@@ -4,6 +4,7 @@ The main thread only supervises: it tells systemd READY=1 once the first block w
 pings WATCHDOG=1 only while blocks keep moving (a stalled source or core lets systemd restart
 us), publishes STATUS= with the latest window, reloads on SIGHUP (a bad new config is logged
 and rejected, the old one keeps running) and drains on SIGTERM. Signal handlers only set flags.
+While it runs, numpy's BLAS keeps to one thread (daemon/blas.py says why).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
+from bogiemon.daemon.blas import limit_blas_threads
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
@@ -31,6 +33,7 @@ from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink, LogSink
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
+from bogiemon.drivers.recording import RecordingError
 
 SourceFactory = Callable[[BogiemonConfig], Source]
 STATUS_PERIOD_S = 10.0
@@ -144,6 +147,9 @@ class Service:
             state=str(store.path), mode=monitor.mode, load=self.load or self.config.decision.load,
         )  # fmt: skip
         self._warn_if_not_commissioned(self.config)
+        # Before the first product: OpenBLAS's pool would spin a core after every large one.
+        blas = limit_blas_threads(1)
+        self._log.info("BLAS kept to one thread", libraries=blas.libraries)
         pipeline = self._start_pipeline(monitor)
         ready = False
         last_status = 0.0
@@ -177,6 +183,7 @@ class Service:
             self.delivery.close()  # says "offline"; what is undelivered stays in the outbox
             monitor.save_state()  # with the held events, a last try; a refusal is logged at crit, never raised
             store.close()
+            blas.restore()  # the process may go on (tests, the bench): its own setting again
             self._log.info("stopped", counters=vars(monitor.counters), source=pipeline.source.counters.as_dict(), ring=vars(pipeline.ring.counters))
         if monitor.store_failure is not None or isinstance(pipeline.error, StoreError):
             self._log.critical(
@@ -185,6 +192,11 @@ class Service:
                 error=monitor.store_failure or str(pipeline.error),
             )  # fmt: skip
             return EXIT_STORE_FAILED
+        if isinstance(pipeline.error, RecordingError):
+            # A replayed recording bad further in: the windows before it were judged and their events
+            # committed; the file is named as a user error (one line, exit 2), never as a crash.
+            self._log.error("the recording cannot be read on, stopping", error=str(pipeline.error))
+            raise pipeline.error
         return EXIT_INTERNAL_ERROR if pipeline.error is not None else EXIT_OK
 
     def _start_pipeline(self, monitor: Monitor) -> Pipeline:

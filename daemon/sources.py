@@ -23,7 +23,7 @@ from bogiemon.daemon.config import (
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import load_layout
-from bogiemon.drivers.recording import RecordingError, is_csv_recording_name
+from bogiemon.drivers.recording import RecordingError, is_sample_recording_name
 from bogiemon.drivers.replay import open_replay
 from bogiemon.drivers.serial_source import SerialSource
 
@@ -60,7 +60,7 @@ def _open_simulated(src: SimulatedSourceConfig, config: BogiemonConfig) -> Sourc
 
 
 def _open_replay(src: ReplaySourceConfig, config: BogiemonConfig) -> Source:
-    is_csv = is_csv_recording_name(src.path)
+    is_csv = is_sample_recording_name(src.path)
     layout = None if is_csv else load_layout(src.dbc_path or None, src.layout)
     source = open_replay(
         src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s

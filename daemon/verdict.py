@@ -9,11 +9,13 @@ sinks (the Monitor adds those).
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass
 from typing import Any
 
+from bogiemon.daemon.coverage import CoverageState, CoverageTracker
 from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Judgement
 from bogiemon.daemon.events import Event
 from bogiemon.daemon.health import HealthSettings, WindowHealth, assess_window
@@ -42,6 +44,8 @@ class MonitorSettings:
     # load, a window excited more gently than that state's commissioning is not judged either.
     load_states: tuple[LoadSignature, ...] = ()
     load_discriminant: LoadDiscriminant | None = None  # with both states: the wagon's own line between them
+    # Running left unjudged this long (unlike the commissioning) is said: NOT_JUDGED (daemon/coverage.py).
+    not_judged_after_s: float = 7200.0
 
     def __post_init__(self) -> None:
         if self.load is LoadSetting.AUTO and self.load_model is None:
@@ -90,10 +94,18 @@ class WindowVerdict:
 class WindowJudge:
     """Sensor health, gating, load state and the suspension decision for one window at a time."""
 
-    def __init__(self, settings: MonitorSettings, decision: DecisionState | None = None, health: HealthState | None = None) -> None:
+    def __init__(
+        self, settings: MonitorSettings, decision: DecisionState | None = None, health: HealthState | None = None,
+        coverage: CoverageState | None = None,
+    ) -> None:  # fmt: skip
         self.settings = settings
         self.decider = self._decider(settings, decision)
         self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, health)
+        self.coverage = self._coverage(settings, coverage)
+
+    @staticmethod
+    def _coverage(settings: MonitorSettings, state: CoverageState | None) -> CoverageTracker:
+        return CoverageTracker(settings.config_hash, settings.processing.hop_s, settings.not_judged_after_s, state)
 
     @staticmethod
     def _decider(settings: MonitorSettings, state: DecisionState | None) -> Decider:
@@ -104,12 +116,19 @@ class WindowJudge:
         self.settings = settings
         self.decider = self._decider(settings, self.decider.state)
         self.health = HealthTracker(settings.config_hash, settings.sensor_clear_after_windows, self.health.state)
+        self.coverage = self._coverage(settings, self.coverage.state)
 
     @property
     def mode(self) -> Mode:
         return self.decider.state.mode
 
     def judge(self, window: WindowIndicators, status: Status = ALL_OK, gaps_last_hour: int = 0) -> WindowVerdict:
+        verdict = self._judge(window, status, gaps_last_hour)
+        why = {} if verdict.unfamiliar is None else {"load_distance": verdict.unfamiliar}
+        said = self.coverage.update(window, verdict.judgement is not None, verdict.outcome is Outcome.UNFAMILIAR, why)
+        return dataclasses.replace(verdict, events=verdict.events + tuple(said)) if said else verdict
+
+    def _judge(self, window: WindowIndicators, status: Status, gaps_last_hour: int) -> WindowVerdict:
         s = self.settings
         health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
         events = self.health.update(window, health)

@@ -126,15 +126,23 @@ class WindowedSpectra:
         self._scale = 2.0 / (hop_n * float(np.sum(self._taper**2)))
         bins = band_bins(hop_n, fs_hz, self.bands_hz)
         n_bands = len(self.bands_hz) - 1
-        # Band sums as one small matrix product: (n_bands, n_bins) 0/1 membership.
-        self._membership = np.zeros((n_bands, bins.size))
-        inside = bins >= 0
-        self._membership[bins[inside], np.flatnonzero(inside)] = 1.0
+        # Band sums with np.add.reduceat over each band's run of bins (the bands are contiguous),
+        # never a BLAS product: a (bands x bins) product past OpenBLAS's threading threshold
+        # (m n k of about 2^18, crossed at 10 bands) woke its worker pool, which then spun a core
+        # for tens of milliseconds after every hop (README, Performance).
+        inside = np.flatnonzero(bins >= 0)
+        counts = np.bincount(bins[inside], minlength=n_bands)
+        # A hop too short for any band (a few samples) keeps every band at zero.
+        self._bins = slice(int(inside[0]), int(inside[-1]) + 1) if inside.size else slice(0, 0)
+        self._nonempty = counts > 0  # bands above Nyquist at a low rate hold no bin
+        self._starts = (np.cumsum(counts) - counts)[self._nonempty]
         # The one-sided density doubles every bin but DC and (for an even hop) Nyquist, which
         # have no mirror image.
-        self._membership[:, 0] *= 0.5
+        weight = np.full(bins.size, self._scale)
+        weight[0] *= 0.5
         if hop_n % 2 == 0:
-            self._membership[:, -1] *= 0.5
+            weight[-1] *= 0.5
+        self._weight = weight[self._bins, None]
         self._hops = np.zeros((hops_per_window, n_bands, 3, 3), dtype=np.complex128)
         self._n_hops = 0
 
@@ -142,10 +150,12 @@ class WindowedSpectra:
         self._n_hops = 0
 
     def push_hop(self, hop: NDArray[np.float64]) -> WindowSpectra | None:
-        spec = fft.rfft(hop * self._taper[:, None], axis=0)  # (bins, 3)
-        products = spec[:, :, None] * np.conj(spec[:, None, :])  # (bins, 3, 3)
+        spec = fft.rfft(hop * self._taper[:, None], axis=0)[self._bins]  # (bins in a band, 3)
+        products = (spec * self._weight)[:, :, None] * np.conj(spec[:, None, :])  # (bins, 3, 3)
         slot = self._n_hops % self.hops_per_window
-        self._hops[slot] = np.tensordot(self._membership, products, axes=(1, 0)) * self._scale
+        self._hops[slot] = 0.0
+        if self._starts.size:
+            self._hops[slot, self._nonempty] = np.add.reduceat(products, self._starts, axis=0)
         self._n_hops += 1
         if self._n_hops < self.hops_per_window:
             return None

@@ -2,30 +2,33 @@
 
 A reader (the daemon at a restart, the fleet's next step, an uploader) never sees a file half
 written: the content goes to a hidden temporary beside the final name (an uploader skips names
-that begin with '.'), is fsynced, renamed over the final name, and the folder is fsynced so that
-the rename itself survives a power cut. A failure leaves the old file (or none) and no temporary.
+that begin with '.'; the name ends as the final one does, so a writer that takes its format from
+the suffix, .csv.gz or .parquet, writes the same bytes there), is fsynced, renamed over the final
+name, and the folder is fsynced so that the rename itself survives a power cut. A failure leaves
+the old file (or none) and no temporary; one a killed writer left is named by TEMPORARY.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-TEMPORARY_SUFFIX = ".tmp"
+# A temporary's name: '.', 8 hex digits (unique: two writers never share one), '.', the final name.
+TEMPORARY = re.compile(r"\.[0-9a-f]{8}\.(?P<final>.+)")
 
 
 def temporary_name(path: Path) -> Path:
-    """The hidden temporary a write of path goes to first: .<name>.<8 hex>.tmp, beside it (unique,
-    so that two writers never share one)."""
-    return path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}{TEMPORARY_SUFFIX}")
+    """The hidden temporary a write of path goes to first, beside it: .<8 hex>.<name>."""
+    return path.with_name(f".{uuid.uuid4().hex[:8]}.{path.name}")
 
 
-def is_temporary_of(name: str, final_name: str) -> bool:
-    """Whether a file name is one of temporary_name's for final_name (left by a writer that died)."""
-    head = f".{final_name}."
-    return name.startswith(head) and name.endswith(TEMPORARY_SUFFIX) and len(name) == len(head) + 8 + len(TEMPORARY_SUFFIX)
+def final_name_of(name: str) -> str | None:
+    """The final name a temporary's name stands for (a writer that died left it); None for another name."""
+    match = TEMPORARY.fullmatch(name)
+    return match.group("final") if match else None
 
 
 def fsync_path(path: str | Path) -> None:

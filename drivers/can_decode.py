@@ -1,9 +1,10 @@
 """CAN frames in, checked and aligned samples out: the part of the CAN source that sees frames.
 
-CanFrameDecoder takes python-can Messages in batches (whatever a read() gathered), sorts them
-into error frames, remote frames, unknown identifiers, wrong lengths and frames of the layout,
-decodes the latter with the compiled DBC in one pass of numpy per batch, checks the sequence
-counter and hands the accepted samples to a SampleQueue. It never raises for what is on the bus.
+CanFrameDecoder takes frames in batches (whatever a read() gathered) as the columns of a
+FrameBatch (drivers/can_frames.py), or as python-can Messages (replay), sorts them into error
+frames, remote frames, unknown identifiers, wrong lengths and frames of the layout, decodes the
+latter with the compiled DBC in one pass of numpy per batch, checks the sequence counter and
+hands the accepted samples to a SampleQueue. It never raises for what is on the bus.
 
 Every received frame lands in exactly one of: counters.frames (well-formed frames of the layout,
 the Sync included, even those the counter check then drops as duplicates or out of order),
@@ -16,21 +17,17 @@ anchors a segment; identifiers beyond 29 bits (11 for a standard frame) are unkn
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import can
 import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
-from bogiemon.drivers.candb import CAN_EFF_KEY, CanLayout, MessageCodec
+from bogiemon.drivers.can_frames import BUS_OFF, ERROR, REMOTE, RX_OVERFLOW, FrameBatch
+from bogiemon.drivers.candb import CanLayout, MessageCodec
 from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker, TimestampGuard
-
-# Error classes in the identifier of a SocketCAN error frame (linux/can/error.h).
-CAN_ERR_CRTL = 0x004  # controller problem, details in data[1]
-CAN_ERR_BUSOFF = 0x040
-CAN_ERR_CRTL_RX_OVERFLOW = 0x01  # data[1]: the controller's receive FIFO overflowed
-CAN_STD_ID_MAX = 0x7FF  # the largest 11-bit identifier
-CAN_EXT_ID_MAX = 0x1FFFFFFF  # the largest 29-bit identifier
 
 CAN_COUNTERS = (
     "duplicates",  # a frame with the counter of the one just accepted: dropped
@@ -76,8 +73,20 @@ class CanFrameDecoder:
             counters.extra.setdefault(name, 0)
         modulus = layout.counter_modulus
         silence_s = max_silence_s(modulus, fs_hz)
-        self._keys = {m.key: m for m in layout.messages}
-        self._other_keys = np.fromiter(layout.other_keys, np.int64, len(layout.other_keys))
+        # Each frame's class: the index of its message in layout.messages (for the per-node
+        # layout the channel of a node, then the Sync), OTHER for the DBC's other messages,
+        # UNKNOWN for the rest; looked up by key in one searchsorted per batch.
+        self._messages = layout.messages
+        self._other = len(self._messages)
+        self._unknown = self._other + 1
+        by_key = {**dict.fromkeys(layout.other_keys, self._other), **{m.key: i for i, m in enumerate(self._messages)}}
+        self._sorted_keys = np.array(sorted(by_key), dtype=np.int64)
+        self._class_of_key = np.array([by_key[k] for k in self._sorted_keys.tolist()] + [self._unknown], dtype=np.int64)
+        self._length_of_class = np.array([m.length for m in self._messages] + [-1, -1], dtype=np.int64)
+        # The nodes' frames decode in one pass where the DBC lays their signals out alike (the
+        # shipped one does), else node by node.
+        nodes = layout.nodes
+        self._node_codecs = nodes[:1] if nodes and all((n.length, n.signals) == (nodes[0].length, nodes[0].signals) for n in nodes) else nodes
         self._guard = TimestampGuard(counters)
         self._tracker = SequenceTracker(modulus, silence_s)
         self._aligner = NodeAligner(modulus, silence_s) if layout.name == "per-node" else None
@@ -90,85 +99,79 @@ class CanFrameDecoder:
         self.queue.close_segment()
 
     def feed(self, messages: Sequence[can.Message]) -> None:
+        """Decode a batch of python-can Messages in arrival order (replay, tests)."""
+        if messages:
+            self.feed_frames(FrameBatch.from_messages(messages))
+
+    def feed_frames(self, frames: FrameBatch) -> None:
         """Decode a batch of frames in arrival order."""
-        if not messages:
+        if frames.n == 0:
             return
-        errors = [i for i, m in enumerate(messages) if m.is_error_frame]
+        errors = np.flatnonzero(frames.flags & ERROR)
+        if errors.size == 0:
+            self._feed_frames(frames)
+            return
         start = 0
-        for i in errors:  # a bus-off splits the batch: nothing is bridged across it
-            self._feed_frames(messages[start:i])
-            if self._count_error_frame(messages[i]):
+        for i in errors.tolist():  # a bus-off splits the batch: nothing is bridged across it
+            self._feed_frames(frames[start:i])
+            if self._count_error_frame(int(frames.flags[i])):
                 self.restart()
             start = i + 1
-        self._feed_frames(messages[start:] if start else messages)
+        self._feed_frames(frames[start:])
 
-    def _count_error_frame(self, message: can.Message) -> bool:
+    def _count_error_frame(self, flags: int) -> bool:
         """Count an error frame; True if it reports bus-off."""
         self.counters.add("error_frames")
-        error_class = message.arbitration_id
-        if error_class & CAN_ERR_CRTL and len(message.data) > 1 and message.data[1] & CAN_ERR_CRTL_RX_OVERFLOW:
+        if flags & RX_OVERFLOW:
             self.counters.add("rx_overflow")
-        if error_class & CAN_ERR_BUSOFF:
+        if flags & BUS_OFF:
             self.counters.add("bus_off")
             return True
         return False
 
-    def _feed_frames(self, messages: Sequence[can.Message]) -> None:
-        if not messages:
+    def _feed_frames(self, frames: FrameBatch) -> None:
+        if frames.n == 0:
             return
-        times_s = _times_of(messages)
-        passed = self._guard.check(times_s)  # counts what it rejects
+        passed = self._guard.check(frames.time_s)  # counts what it rejects
         if not passed.all():
-            messages = [m for m, ok in zip(messages, passed.tolist(), strict=True) if ok]
-            times_s = times_s[passed]
-            if not messages:
+            frames = frames[passed]
+            if frames.n == 0:
                 return
-        keys = _keys_of(messages)
-        remote = np.fromiter((m.is_remote_frame for m in messages), bool, len(messages))
-        lengths = np.fromiter((len(m.data) for m in messages), np.int64, len(messages))
-        n_remote = int(remote.sum())
-        if n_remote:
-            self.counters.add("remote_frames", n_remote)
-            self.counters.bad_frames += n_remote
-        known = np.zeros(len(messages), bool)
-        good: dict[int, NDArray[np.intp]] = {}
-        for key, codec in self._keys.items():
-            mine = (keys == key) & ~remote
-            known |= mine
-            ok = mine & (lengths == codec.length)
-            n_wrong = int(mine.sum() - ok.sum())
-            if n_wrong:
-                self.counters.add("wrong_length", n_wrong)
-                self.counters.bad_frames += n_wrong
-            good[key] = np.flatnonzero(ok)
-            self.counters.frames += good[key].size
-        other = np.isin(keys, self._other_keys) & ~remote
-        n_other = int((other & ~known).sum())
-        if n_other:
-            self.counters.add("other_dbc_frames", n_other)
-        n_unknown = int((~known & ~other & ~remote).sum())
-        if n_unknown:
-            self.counters.add("unknown_ids", n_unknown)
-            self.counters.bad_frames += n_unknown
+        position = np.minimum(np.searchsorted(self._sorted_keys, frames.key), self._sorted_keys.size - 1)
+        known = self._sorted_keys[position] == frames.key
+        frame_class = np.where(known, self._class_of_key[position], self._unknown)
+        remote = (frames.flags & REMOTE) != 0
+        layout_frame = (frame_class < self._other) & ~remote
+        good = layout_frame & (frames.length == self._length_of_class[frame_class])
+        n_good = int(good.sum())
+        self.counters.frames += n_good
+        if n_good < frames.n:  # something else than well-formed frames of the layout: count it
+            n_remote = int(remote.sum())
+            n_wrong = int(layout_frame.sum()) - n_good
+            n_other = int(((frame_class == self._other) & ~remote).sum())
+            n_unknown = frames.n - n_remote - int(layout_frame.sum()) - n_other
+            for name, count in (("remote_frames", n_remote), ("wrong_length", n_wrong), ("unknown_ids", n_unknown)):
+                if count:
+                    self.counters.add(name, count)
+                    self.counters.bad_frames += count
+            if n_other:
+                self.counters.add("other_dbc_frames", n_other)
         if self.layout.hub is not None:
-            self._feed_hub(messages, good[self.layout.hub.key], times_s)
+            index = np.flatnonzero(good) if n_good < frames.n else None
+            self._feed_hub(frames, index)
         else:
-            self._feed_nodes(messages, good, times_s)
+            self._feed_nodes(frames, np.flatnonzero(good & (frame_class < len(self.layout.nodes))), frame_class)
 
-    @staticmethod
-    def _payloads(messages: Sequence[can.Message], index: NDArray[np.intp], codec: MessageCodec) -> NDArray[np.uint8]:
-        raw = b"".join([messages[i].data for i in index.tolist()])
-        return np.frombuffer(raw, dtype=np.uint8).reshape(index.size, codec.length)
-
-    def _feed_hub(self, messages: Sequence[can.Message], index: NDArray[np.intp], all_times_s: NDArray[np.float64]) -> None:
-        if index.size == 0:
-            return
+    def _feed_hub(self, frames: FrameBatch, index: NDArray[np.intp] | None) -> None:
+        """The hub's frames (index: which of the batch; None: all of them)."""
         codec = self.layout.hub
         assert codec is not None
-        le, be = codec.words(self._payloads(messages, index, codec))
+        data, times_s = (frames.data, frames.time_s) if index is None else (frames.data[index], frames.time_s[index])
+        if data.shape[0] == 0:
+            return
+        le, be = codec.words(data[:, : codec.length])
         sig = codec.signals
         counter = sig["Counter"].raw(le, be)
-        times_s = all_times_s[index]
         verdict = self._tracker.check(counter, times_s)
         self._count_verdict(verdict.duplicates, verdict.out_of_order, verdict.lost)
         keep = verdict.accept
@@ -181,37 +184,32 @@ class CanFrameDecoder:
         )
         self.queue.append(accel, status, verdict.new_segment[keep], times_s[keep])
 
-    def _feed_nodes(
-        self, messages: Sequence[can.Message], good: dict[int, NDArray[np.intp]], all_times_s: NDArray[np.float64]
-    ) -> None:
+    def _feed_nodes(self, frames: FrameBatch, index: NDArray[np.intp], frame_class: NDArray[np.int64]) -> None:
+        """The nodes' frames (index: which of the batch, in arrival order), joined into instants."""
         assert self._aligner is not None
-        parts = []
-        for channel, codec in enumerate(self.layout.nodes):
-            index = good[codec.key]
-            if index.size == 0:
-                continue
-            le, be = codec.words(self._payloads(messages, index, codec))
-            sig = codec.signals
-            parts.append(
-                (
-                    index,
-                    np.full(index.size, channel),
-                    sig["Counter"].raw(le, be),
-                    sig["Accel"].decode(le, be),
-                    status_bits(sig["OverRange"].raw(le, be), sig["SensorFault"].raw(le, be)),
-                )
-            )
-        if not parts:
+        if index.size == 0:
             return
-        order = np.argsort(np.concatenate([p[0] for p in parts]), kind="stable")  # back to arrival order
-        index = np.concatenate([p[0] for p in parts])[order]
-        channel = np.concatenate([p[1] for p in parts])[order]
-        counter = np.concatenate([p[2] for p in parts])[order]
-        value = np.concatenate([p[3] for p in parts])[order]
-        status = np.concatenate([p[4] for p in parts])[order]
-        out = self._aligner.push(channel, counter, value, status, all_times_s[index])
+        channel = frame_class[index]
+        if len(self._node_codecs) == 1:
+            counter, value, status = self._decode_node(self._node_codecs[0], frames.data[index])
+        else:
+            counter = np.empty(index.size, np.int64)
+            value = np.empty(index.size, np.float64)
+            status = np.empty(index.size, np.uint8)
+            for c, codec in enumerate(self._node_codecs):
+                mine = channel == c
+                if mine.any():
+                    counter[mine], value[mine], status[mine] = self._decode_node(codec, frames.data[index[mine]])
+        out = self._aligner.push(channel, counter, value, status, frames.time_s[index])
         self._count_verdict(out.duplicates, out.out_of_order, out.lost)
         self.queue.append(out.accel_mps2, out.status, out.new_segment, out.times_s)
+
+    @staticmethod
+    def _decode_node(codec: MessageCodec, data: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.uint8]]:
+        """Counter, acceleration and status bits of node frames' data (n, 8)."""
+        le, be = codec.words(data[:, : codec.length])
+        sig = codec.signals
+        return sig["Counter"].raw(le, be), sig["Accel"].decode(le, be), status_bits(sig["OverRange"].raw(le, be), sig["SensorFault"].raw(le, be))
 
     def _count_verdict(self, duplicates: int, out_of_order: int, lost: int) -> None:
         if duplicates:
@@ -222,53 +220,45 @@ class CanFrameDecoder:
             self.counters.add("lost_samples", lost)
 
 
-def _times_of(messages: Sequence[can.Message]) -> NDArray[np.float64]:
-    """The frames' receive times in seconds; NaN for a stamp that is not a number (the guard drops it)."""
-    try:
-        return np.fromiter((m.timestamp for m in messages), np.float64, len(messages))
-    except (TypeError, ValueError, OverflowError):
-        return np.array([_as_float(m.timestamp) for m in messages], dtype=np.float64)
+class NodeFrames(NamedTuple):
+    """A batch of node frames in arrival order, (n,) each: channel 0..2, counter, value, status bits, receive time."""
+
+    channel: NDArray[np.int64]
+    counter: NDArray[np.int64]
+    value: NDArray[np.float64]
+    status: NDArray[np.uint8]
+    times_s: NDArray[np.float64]
 
 
-def _as_float(value: object) -> float:
-    try:
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError, OverflowError):
-        return float("nan")
-
-
-def _keys_of(messages: Sequence[can.Message]) -> NDArray[np.int64]:
-    """Frame keys (identifier | CAN_EFF_KEY for 29-bit ones); -1 for an identifier no CAN frame can carry.
-
-    python-can's readers take identifiers as written: an .asc line may hold one too large for a
-    C long, and a standard frame's beyond 11 bits would alias a 29-bit key.
-    """
-    n = len(messages)
-    extended = np.fromiter((bool(m.is_extended_id) for m in messages), bool, n)
-    try:
-        ids = np.fromiter((m.arbitration_id for m in messages), np.int64, n)
-    except (TypeError, ValueError, OverflowError):
-        ids = np.fromiter((_id_or_minus_one(m.arbitration_id) for m in messages), np.int64, n)
-    valid = (ids >= 0) & (ids <= np.where(extended, CAN_EXT_ID_MAX, CAN_STD_ID_MAX))
-    return np.where(valid, ids | np.where(extended, CAN_EFF_KEY, 0), -1)
-
-
-def _id_or_minus_one(arbitration_id: object) -> int:
-    return arbitration_id if isinstance(arbitration_id, int) and 0 <= arbitration_id <= CAN_EXT_ID_MAX else -1
-
-
+@dataclass(frozen=True)
 class AlignedSamples:
-    """Complete sampling instants assembled by NodeAligner.push."""
+    """Complete sampling instants assembled by NodeAligner.push, in counter order.
 
-    def __init__(self, rows: list[tuple[list[float], list[int], bool, float]], duplicates: int, out_of_order: int, lost: int) -> None:
+    accel_mps2 (m, 3), status (m, 3) per channel, new_segment (m,): the instant starts a segment
+    (instants were lost before it), times_s (m,): the receive time of each instant's first frame;
+    and the frames dropped (duplicates, out_of_order) and instants lost in this push.
+    """
+
+    accel_mps2: NDArray[np.float64]
+    status: NDArray[np.uint8]
+    new_segment: NDArray[np.bool_]
+    times_s: NDArray[np.float64]
+    duplicates: int = 0
+    out_of_order: int = 0
+    lost: int = 0
+
+    @classmethod
+    def from_rows(cls, rows: list[tuple[list[float], list[int], bool, float]], duplicates: int, out_of_order: int, lost: int) -> AlignedSamples:
         n = len(rows)
-        self.accel_mps2 = np.array([r[0] for r in rows], dtype=np.float64).reshape(n, 3)
-        self.status = np.array([r[1] for r in rows], dtype=np.uint8).reshape(n, 3)
-        self.new_segment = np.array([r[2] for r in rows], dtype=bool)
-        self.times_s = np.array([r[3] for r in rows], dtype=np.float64)
-        self.duplicates = duplicates
-        self.out_of_order = out_of_order
-        self.lost = lost
+        return cls(
+            np.array([r[0] for r in rows], dtype=np.float64).reshape(n, 3),
+            np.array([r[1] for r in rows], dtype=np.uint8).reshape(n, 3),
+            np.array([r[2] for r in rows], dtype=bool),
+            np.array([r[3] for r in rows], dtype=np.float64),
+            duplicates,
+            out_of_order,
+            lost,
+        )
 
 
 class NodeAligner:
@@ -278,6 +268,13 @@ class NodeAligner:
     instant is complete when all three answers with that counter are in. Instants are emitted
     in counter order. An instant still incomplete when any node is `window` counts past it is
     lost: the segment ends there and the next complete instant starts a new one.
+
+    The rules are those of `_push_frame_by_frame`, one frame at a time: the definition, and what
+    runs for a batch that is not regular. A regular batch (the steady state: no pause beyond
+    max_silence_s, no frame repeated or behind the instant being assembled, within a segment that
+    has delivered, lost instants allowed) is joined in numpy by `_push_regular`, with the same
+    result to the bit (tests/drivers/test_node_aligner.py checks it against the frame-by-frame
+    rules with hypothesis).
     """
 
     def __init__(self, modulus: int, max_silence_s: float, window: int = 16) -> None:
@@ -311,6 +308,108 @@ class NodeAligner:
         status: NDArray[np.uint8],
         times_s: NDArray[np.float64],
     ) -> AlignedSamples:
+        """Join a batch of node frames in arrival order: channel (0..2), counter, value, status bits, receive time (n,)."""
+        frames = NodeFrames(channel, counter, value, status, times_s)
+        joined = self._push_regular(frames)
+        if joined is not None:
+            return joined
+        return self._push_frame_by_frame(frames)
+
+    def _push_regular(self, frames: NodeFrames) -> AlignedSamples | None:
+        """A regular batch joined in numpy; None (and nothing changed) if the batch is not regular.
+
+        In instants counted from the next one to emit (u: each frame's, unwrapped along the
+        batch), the rules come down to this when every frame is accepted: instant v is passed
+        (emitted if complete, else lost) at the frame where it completes or where a frame
+        `window` instants ahead arrives, whichever comes first, and never before instant v - 1.
+        The batch is regular when each frame then lies ahead of the instant being assembled at
+        its arrival by less than half the counter period, and is no repeat.
+        """
+        channel, counter, value, status, times_s = frames
+        n = channel.shape[0]
+        if n == 0:
+            return AlignedSamples.from_rows([], 0, 0, 0)
+        if self._next is None or not self._segment_emitted or self._last_time_s is None:
+            return None  # a segment's start has rules of its own
+        modulus, window, half = self.modulus, self.window, self.modulus // 2
+        if times_s[0] - self._last_time_s > self.max_silence_s or bool((times_s[1:] - times_s[:-1] > self.max_silence_s).any()):
+            return None
+        first = self._next
+        u = np.empty(n, np.int64)
+        u[0] = (int(counter[0]) - first) % modulus
+        u[1:] = u[0] + np.cumsum((counter[1:] - counter[:-1] + half) % modulus - half)
+        have = np.array(self._have, dtype=np.int64)
+        slots = np.flatnonzero(have)
+        pending_at = (slots - first) % modulus  # instants waiting for frames, counted from next
+        if pending_at.size and int(pending_at.max()) >= half:
+            return None
+        size = int(max(u.max(), pending_at.max(initial=-1))) + 1
+        if int(u.min()) < 0 or size > 2 * n + modulus:
+            return None  # frames from before the instant being assembled, or counters far apart
+        bit = np.left_shift(1, channel)
+        pending = np.zeros(size, np.int64)
+        pending[pending_at] = have[slots]
+        frame = np.arange(n)
+        answers = np.zeros((size, 3), np.int64)  # frames per instant and node
+        np.add.at(answers, (u, channel), 1)
+        if bool((pending[u] & bit).any()) or int(answers.max()) > 1:
+            return None  # a frame repeated
+        bits = pending | (answers[:, 0] | answers[:, 1] << 1 | answers[:, 2] << 2)
+        last = np.full(size, -1)
+        np.maximum.at(last, u, frame)
+        done = np.where(bits == 0b111, last, n)  # the frame completing each instant (-1: before the batch, n: none)
+        floor = np.maximum.accumulate(u - window + 1)  # next is at least this after each frame
+        pushed_past = np.searchsorted(floor, np.arange(size), side="right")  # first frame with floor > v
+        passed_at = np.maximum.accumulate(np.minimum(done, pushed_past))
+        next_before = np.searchsorted(passed_at, frame, side="left")  # instants passed before each frame
+        ahead = u - next_before
+        if bool((ahead < 0).any()) or bool((ahead >= half).any()):
+            return None  # behind the instant being assembled: out of order, or a restart
+        # Regular: every frame is accepted. Commit the state and emit.
+        passed = passed_at < n
+        n_passed = int(passed.sum())
+        emitted = passed & (done <= passed_at)
+        lost_mask = passed & ~emitted
+        rows = np.flatnonzero(emitted)
+        values = np.zeros((size, 3))
+        bits_status = np.zeros((size, 3), np.uint8)
+        first_time_s = np.zeros(size)
+        values[pending_at] = self._values[slots]
+        bits_status[pending_at] = self._status[slots]
+        first_time_s[pending_at] = [self._first_time_s[s] for s in slots.tolist()]
+        values[u, channel] = value
+        bits_status[u, channel] = status
+        first_frame = np.full(size, n)
+        np.minimum.at(first_frame, u, frame)
+        first_time_s = np.where(pending != 0, first_time_s, times_s[np.minimum(first_frame, n - 1)])
+        lost_before = np.cumsum(lost_mask)[rows]  # instants lost up to each emitted one
+        new_segment = lost_before > np.concatenate([[0], lost_before[:-1]])
+        n_lost = int(lost_mask.sum())
+        if rows.size:
+            new_segment[0] |= self._new_segment
+            self._new_segment = n_lost > int(lost_before[-1])
+        else:
+            self._new_segment = self._new_segment or n_lost > 0
+        waiting = np.arange(n_passed, size)
+        waiting = waiting[bits[waiting] != 0]
+        waiting_slots = (first + waiting) % modulus
+        have[(first + np.arange(min(n_passed, modulus))) % modulus] = 0
+        have[waiting_slots] = bits[waiting]
+        self._values[waiting_slots] = values[waiting]
+        self._status[waiting_slots] = bits_status[waiting]
+        for slot, time_s in zip(waiting_slots.tolist(), first_time_s[waiting].tolist(), strict=True):
+            self._first_time_s[slot] = time_s
+        self._have = have.tolist()
+        self._next = (first + n_passed) % modulus
+        self._last_time_s = float(times_s[-1])
+        for c, answered in enumerate(answers.any(axis=0).tolist()):
+            if answered:
+                self._behind[c] = 0
+        return AlignedSamples(values[rows], bits_status[rows], new_segment, first_time_s[rows], lost=n_lost)
+
+    def _push_frame_by_frame(self, frames: NodeFrames) -> AlignedSamples:
+        """The rules, one frame at a time: the definition of push, and what runs for an irregular batch."""
+        channel, counter, value, status, times_s = frames
         rows: list[tuple[list[float], list[int], bool, float]] = []
         duplicates = out_of_order = lost = 0
         half = self.modulus // 2
@@ -358,7 +457,7 @@ class NodeAligner:
                     ahead -= 1
             while self._have[self._next] == 0b111:
                 self._emit(rows)
-        return AlignedSamples(rows, duplicates, out_of_order, lost)
+        return AlignedSamples.from_rows(rows, duplicates, out_of_order, lost)
 
     def _emit(self, rows: list[tuple[list[float], list[int], bool, float]]) -> None:
         c = self._next

@@ -4,20 +4,29 @@ The bus comes from a BusPort, the one extension point. CanBusPort opens a python
 drivers/canbus.py: kind 'socketcan' on a gateway (can0, vcan0), 'virtual' for tests and
 in-process benches. canbus.py instantiates the interface class directly with every setting
 spelled out, never `can.Bus(...)`, so no ~/.canrc, can.ini or CAN_* environment variable is read.
-Only the bus construction differs between the kinds; everything past it is the same code.
+
+The port also says how the frames come off the bus (drivers/can_frames.py), and that is the one
+other place where the kinds differ: a bus with a socket (SocketCAN) is read in batches, every
+frame queued on the socket in one recvmmsg(2) parsed with numpy, because python-can's SocketCAN
+receive costs a select, a recvmsg and a Message per frame (it has no batch receive; Python's
+socket module has no recvmmsg) and that was most of the reader's CPU; the virtual bus, an
+in-process queue of Messages, is read through python-can's recv. Past the reader, frames are
+the columns of a FrameBatch and everything is the same code. The socket reader is tested on this
+kernel's datagram sockets carrying the same struct can_frame bytes, against python-can's own
+parsing (tests/drivers/test_can_frames.py), as AF_CAN cannot be created here.
 
 read(timeout_s) gathers frames for up to timeout_s, decodes them in one batch and returns the
 samples received since the last call: a Block as soon as max_block_s of samples are in or a
 segment ends, else at timeout_s whatever arrived (None if nothing did). While a block fills, the
 reader does not wake for every frame: once the bus's queue is drained it sleeps coalesce_s (by
-default the time 25 frames take, at most 50 ms) and then takes everything that arrived meanwhile,
-the frames keeping their receive times. At 500 Hz that is 20 wake-ups a second instead of 500
-and a third of the reader's CPU (`make bench-drivers`, README "Performance"); a
-block's last sample waits at most coalesce_s longer.
+default the time 100 frames take, at most 50 ms: 50 ms for either layout at 500 Hz) and then
+takes everything that arrived meanwhile, the frames keeping their receive times. At 500 Hz that
+is 20 wake-ups a second instead of 500 or 2000 (`make bench-drivers`); a block's last sample
+waits at most coalesce_s longer.
 
-When the bus fails (an interface unplugged or deleted, a closed channel) the source counts it,
-closes the bus, and reopens it with exponential backoff on later calls; the next samples start a
-new segment.
+The read loop, the counting and the reconnection are drivers/live.py's: when the bus fails (an
+interface unplugged or deleted, a closed channel) the source counts it, closes the bus, and
+reopens it with exponential backoff on later calls; the next samples start a new segment.
 """
 
 from __future__ import annotations
@@ -30,12 +39,11 @@ from collections.abc import Callable
 
 import can
 
-from bogiemon.drivers.base import Block, HealthCounters, Source
 from bogiemon.drivers.can_decode import CanFrameDecoder
+from bogiemon.drivers.can_frames import BusFrameReader, FrameReader, SocketFrameReader
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import BusRole, bus_kind, open_bus
-from bogiemon.drivers.reconnect import Backoff
-from bogiemon.drivers.segments import SampleQueue
+from bogiemon.drivers.live import LiveSource
 
 # Linux socket options Python's socket module does not name (asm-generic/socket.h values,
 # those of x86, arm and arm64).
@@ -43,21 +51,31 @@ SO_RCVBUFFORCE = 33
 SO_MEMINFO = 55
 SK_MEMINFO_DROPS = 8  # index in the u32 array SO_MEMINFO returns (Linux >= 4.6)
 # How long the reader lets frames accumulate once the bus queue is drained, by default: the
-# time COALESCE_FRAMES take to arrive, at most MAX_COALESCE_S (50 ms for the hub layout at
-# 500 Hz, 12.5 ms per-node). The socket's receive buffer must hold them meanwhile: a small part
-# of the few hundred frames the default net.core.rmem_max holds.
-COALESCE_FRAMES = 25
+# time COALESCE_FRAMES take to arrive, at most MAX_COALESCE_S (50 ms for either layout at
+# 500 Hz). Each wake-up costs a sleep and a system call whatever it brings: per node, 12.5 ms
+# (25 frames) cost a third more CPU than 50 ms (bench/bench_drivers.py). The socket's receive
+# buffer must hold them meanwhile: the few hundred frames it holds even where net.core.rmem_max
+# is left at its default (docs/drivers.md) are several times 100.
+COALESCE_FRAMES = 100
 MAX_COALESCE_S = 0.05
+# The most frames gathered before they are decoded: a block's worth up to this many (recvmmsg
+# takes at most 1024 messages a call, UIO_MAXIOV), so that a reader's buffers stay small (128
+# bytes a frame) whatever max_block_s and fs_hz are; a larger block is gathered in several.
+MAX_BATCH_FRAMES = 1024
 
 
 class BusPort(ABC):
-    """How a CanSource gets (and gets again) its bus."""
+    """How a CanSource gets (and gets again) its bus, and takes its frames off it."""
 
     description: str
 
     @abstractmethod
     def open(self) -> can.BusABC:
         """A new bus; raises OSError or can.CanError if the interface is not there."""
+
+    def frame_reader(self, bus: can.BusABC, capacity: int) -> FrameReader:
+        """What takes bus's frames off it, up to capacity between two takes: python-can's recv here."""
+        return BusFrameReader(bus)
 
     def dropped_frames(self, bus: can.BusABC) -> int | None:
         """Frames the bus's receive queue had to drop so far, if the interface can tell."""
@@ -67,12 +85,14 @@ class BusPort(ABC):
 class CanBusPort(BusPort):
     """A python-can bus of a kind of drivers/canbus.py ('socketcan', 'virtual') on one channel.
 
-    Where the bus has a socket (SocketCAN), its receive buffer holds the frames that arrive while
-    the daemon is busy; each frame costs the kernel a whole socket buffer (several hundred bytes),
-    not 16. SO_RCVBUFFORCE (needs CAP_NET_ADMIN) sets it past net.core.rmem_max; without the
-    capability SO_RCVBUF is capped there. effective_receive_buffer_bytes is what the kernel
-    granted (None: no socket, or receive_buffer_bytes None leaves the kernel's default). The
-    kernel's drop count is read from the same socket; a virtual bus has neither.
+    Where the bus has a socket (SocketCAN), its frames are read off that socket in batches
+    (drivers/can_frames.py: SocketFrameReader, one recvmmsg(2) for all the frames queued), and
+    its receive buffer holds the frames that arrive while the daemon is busy; each frame costs
+    the kernel a whole socket buffer (several hundred bytes), not 16. SO_RCVBUFFORCE (needs
+    CAP_NET_ADMIN) sets it past net.core.rmem_max; without the capability SO_RCVBUF is capped
+    there. effective_receive_buffer_bytes is what the kernel granted (None: no socket, or
+    receive_buffer_bytes None leaves the kernel's default). The kernel's drop count is read from
+    the same socket. A virtual bus has none of these: python-can's recv reads it.
     """
 
     def __init__(self, kind: str, channel: str, receive_buffer_bytes: int | None = None) -> None:
@@ -88,6 +108,10 @@ class CanBusPort(BusPort):
         if self.receive_buffer_bytes is not None and isinstance(sock, socket.socket):
             self.effective_receive_buffer_bytes = set_receive_buffer(sock, self.receive_buffer_bytes)
         return bus
+
+    def frame_reader(self, bus: can.BusABC, capacity: int) -> FrameReader:
+        sock = getattr(bus, "socket", None)
+        return SocketFrameReader(sock, capacity) if isinstance(sock, socket.socket) else BusFrameReader(bus)
 
     def dropped_frames(self, bus: can.BusABC) -> int | None:
         sock = getattr(bus, "socket", None)
@@ -119,8 +143,15 @@ def socket_drops(sock: socket.socket) -> int | None:
     return int(struct.unpack_from("=I", raw, 4 * SK_MEMINFO_DROPS)[0])
 
 
-class CanSource(Source):
-    """Blocks from a CAN bus carrying one of the DBC's layouts (docs/drivers.md)."""
+class CanSource(LiveSource[can.BusABC]):
+    """Blocks from a CAN bus carrying one of the DBC's layouts (docs/drivers.md).
+
+    The read loop, the counting and the reconnection are LiveSource's; this class opens and
+    closes the bus through its port and gathers and decodes its frames.
+    """
+
+    device_errors = (can.CanError, OSError)
+    open_errors = device_errors
 
     def __init__(
         self,
@@ -134,85 +165,68 @@ class CanSource(Source):
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
+        super().__init__(fs_hz, max_block_s, backoff_min_s, backoff_max_s, clock, sleep)
         self.port = port
         self.layout = layout
-        self.fs_hz = fs_hz
-        self.counters = HealthCounters()
-        self.max_block_n = max(1, round(max_block_s * fs_hz))
+        self.description = port.description
         if coalesce_s is None:
             coalesce_s = min(MAX_COALESCE_S, COALESCE_FRAMES / (fs_hz * layout.frames_per_instant))
         if coalesce_s < 0:
             raise ValueError(f"coalesce_s must be >= 0 (0: wake for every frame), got {coalesce_s}")
         self.coalesce_s = coalesce_s
-        self._queue = SampleQueue(fs_hz)
         self._decoder = CanFrameDecoder(layout, fs_hz, self.counters, self._queue)
-        self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
-        self._clock = clock
-        self._sleep = sleep
-        self._bus: can.BusABC | None = None
-        self._opened_before = False
+        self._frames_per_instant = layout.frames_per_instant
+        self._batch_frames = min(self.max_block_n * self._frames_per_instant, MAX_BATCH_FRAMES)
+        self._reader: FrameReader | None = None
         self._drops_seen = 0  # the current bus's kernel drop count already counted
-        self._frames_at_open = 0
-        self._try_open()
+        self._start()
 
-    @property
-    def connected(self) -> bool:
-        return self._bus is not None
-
-    def read(self, timeout_s: float) -> Block | None:
-        deadline = self._clock() + timeout_s
-        while not self._queue.full_block_ready(self.max_block_n):
-            remaining_s = deadline - self._clock()
-            if remaining_s <= 0:
-                break
-            if self._bus is None and not self._try_open():
-                self._sleep(min(remaining_s, max(self._backoff.due_in_s(), 1e-3)))
-                continue
-            self._receive(remaining_s)
-        block = self._queue.take(self.max_block_n)
-        self.counters.gaps = self._queue.gaps
-        if block is None:
-            self.counters.timeouts += 1
-        return block
-
-    def _receive(self, remaining_s: float) -> None:
-        """Gather frames until a block's worth is in or remaining_s is over, then decode them."""
-        bus = self._bus
-        assert bus is not None
-        wanted = max(1, self.max_block_n - self._queue.n_pending) * self.layout.frames_per_instant
-        end_s = self._clock() + remaining_s
-        messages: list[can.Message] = []
+    def _open(self) -> can.BusABC:
+        bus = self.port.open()
         try:
-            message = bus.recv(timeout=remaining_s)  # an idle bus: block until a frame comes
-            while message is not None:
-                messages.append(message)
-                if len(messages) >= wanted:
-                    break
-                message = self._next_frame(bus, end_s)
-        except (can.CanError, OSError) as exc:
-            self._decoder.feed(messages)
-            self._lose_bus(exc)
-            return
-        self._decoder.feed(messages)
-        self._count_kernel_drops(bus)
-        if self.counters.frames > self._frames_at_open:
-            self._backoff.reset()  # data flows: a later loss retries quickly again
+            self._reader = self.port.frame_reader(bus, self._batch_frames)
+        except BaseException:
+            bus.shutdown()
+            raise
+        self._drops_seen = self.port.dropped_frames(bus) or 0
+        return bus
 
-    def _next_frame(self, bus: can.BusABC, end_s: float) -> can.Message | None:
-        """The next frame of a batch being gathered, None once none comes before end_s.
+    def _close(self, device: can.BusABC) -> None:
+        self._reader = None
+        device.shutdown()
+
+    def _restart(self) -> None:
+        self._decoder.restart()
+
+    def _receive(self, device: can.BusABC, timeout_s: float, wanted_n: int) -> None:
+        """Gather frames until wanted_n instants' worth (or a batch) are in or timeout_s is over, then decode them."""
+        reader = self._reader
+        assert reader is not None
+        wanted = min(wanted_n * self._frames_per_instant, self._batch_frames)
+        end_s = self._clock() + timeout_s
+        try:
+            got = reader.receive(wanted, timeout_s)  # an idle bus: block until a frame comes
+            while 0 < got < wanted:
+                more = self._more_frames(reader, wanted - got, end_s)
+                if more == 0:
+                    break
+                got += more
+        finally:
+            self._decoder.feed_frames(reader.take())  # the frames received before a failure too
+        self._count_kernel_drops(device)
+
+    def _more_frames(self, reader: FrameReader, max_n: int, end_s: float) -> int:
+        """More frames for a batch being gathered (the queue was drained): 0 once none comes before end_s.
 
         Past the deadline it still takes what is already queued (timeout 0). With coalesce_s > 0
-        a drained queue is left to refill for coalesce_s instead of waking for every frame.
+        the drained queue is left to refill for coalesce_s instead of waking for every frame.
         """
         if self.coalesce_s == 0:
-            return bus.recv(timeout=max(0.0, end_s - self._clock()))
-        message = bus.recv(timeout=0.0)
-        if message is None:
-            pause_s = min(self.coalesce_s, end_s - self._clock())
-            if pause_s > 0:
-                self._sleep(pause_s)
-                message = bus.recv(timeout=0.0)
-        return message
+            return reader.receive(max_n, max(0.0, end_s - self._clock()))
+        pause_s = min(self.coalesce_s, end_s - self._clock())
+        if pause_s > 0:
+            self._sleep(pause_s)
+        return reader.receive(max_n, 0.0)
 
     def _count_kernel_drops(self, bus: can.BusABC) -> None:
         drops = self.port.dropped_frames(bus)
@@ -221,46 +235,3 @@ class CanSource(Source):
             # No restart here: the loss shows in the counters and, for long losses, in the
             # receive times (kernel time stamps), exactly where it happened in the stream.
             self._drops_seen = drops
-
-    def _try_open(self) -> bool:
-        if self._backoff.due_in_s() > 0:
-            return False
-        try:
-            bus = self.port.open()
-        except (can.CanError, OSError) as exc:
-            self.counters.add("open_failures")
-            wait_s = self._backoff.failed()
-            self.last_error = f"{self.port.description}: cannot open: {_reason(exc)}; retrying in {wait_s:g} s"
-            return False
-        if self._opened_before:
-            self.counters.reconnects += 1
-        self._opened_before = True
-        self._bus = bus
-        self._drops_seen = self.port.dropped_frames(bus) or 0
-        self._frames_at_open = self.counters.frames
-        self._decoder.restart()
-        return True
-
-    def _lose_bus(self, exc: BaseException) -> None:
-        self.counters.add("disconnects")
-        wait_s = self._backoff.failed()
-        self.last_error = f"{self.port.description}: lost: {_reason(exc)}; reopening in {wait_s:g} s"
-        self._close_bus()
-        self._decoder.restart()
-
-    def _close_bus(self) -> None:
-        bus, self._bus = self._bus, None
-        if bus is not None:
-            try:
-                bus.shutdown()
-            except (can.CanError, OSError):
-                pass  # the interface is already gone; nothing left to release
-
-    def close(self) -> None:
-        self._close_bus()
-
-
-def _reason(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    return str(exc) or type(exc).__name__

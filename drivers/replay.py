@@ -1,8 +1,8 @@
-"""Replay sources: a CSV recording or a CAN log played back as if live, then EndOfStream.
+"""Replay sources: a recording of samples or a CAN log played back as if live, then EndOfStream.
 
-CSV recordings (drivers/recording.py, plain .csv or compressed .csv.gz) come back as they were
-written: the block times are the file's time_s. CAN logs are anything python-can reads by suffix
-(candump -L .log, Vector .asc and .blf, ...), decoded with the DBC through the same
+Recordings of samples (drivers/recording.py: .csv, .csv.gz, .parquet) come back as they were
+written, read as they are replayed: the block times are the file's time_s. CAN logs are anything
+python-can reads by suffix (candump -L .log, Vector .asc and .blf, ...), decoded with the DBC through the same
 CanFrameDecoder as the live CAN source, so a log with lost, repeated or foreign frames, or frames
 with unusable time stamps, is counted and segmented exactly as on the bus; the block times come
 from the log's time stamps (absolute in .log and .blf, from 0 in .asc).
@@ -21,17 +21,18 @@ as that long: a stamp from next century never stalls a replay.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
-from typing import TextIO
 
 import can
 import numpy as np
+from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source, plausible_time
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
-from bogiemon.drivers.recording import RecordingError, is_csv_recording_name, read_csv_recording
+from bogiemon.drivers.files import FileKind, TextLines, open_untrusted
+from bogiemon.drivers.recording import RecordingError, is_sample_recording_name, open_recording_reader
 from bogiemon.drivers.segments import SampleQueue
 
 # The longest silence of a CAN log a paced replay waits out (a wagon standing at a station, or a
@@ -39,10 +40,28 @@ from bogiemon.drivers.segments import SampleQueue
 # counter period whatever its length, so waiting longer would change nothing but the wall time.
 MAX_PACED_PAUSE_S = 10.0
 REPLAY_COUNTERS = ("unreadable_entries",)  # log entries python-can could not parse (also bad_frames)
+RECORDING_COUNTERS = ("clipped_samples",)  # samples beyond the converter's range, clipped to its full scale
+# A CAN log: a day of a hub at 500 Hz is about 3 GiB of candump -L text. Lines of a log are a
+# hundred bytes; a longer one than this is no frame, and is counted and skipped unread.
+CAN_LOG_FILE = FileKind(
+    name="CAN log",
+    description="a CAN log is a candump -L .log, a Vector .asc or .blf file",
+    max_bytes=16 << 30,
+    too_large="split the log into files of a few hours",
+    max_line_bytes=64 << 10,
+)
 
 
-class CsvReplaySource(Source):
-    """A CSV recording, block by block, at real-time pace (rate 1), N times faster, or unpaced (0)."""
+class RecordingReplaySource(Source):
+    """A recording of samples (CSV, .csv.gz, Parquet), block by block, at real-time pace (rate 1), N
+    times faster, or unpaced (0).
+
+    The file is read as it is replayed, a chunk at a time (drivers/recording.py), so memory does not
+    grow with its length; its rate is known at the open. A bad row ends the replay where the reading
+    reaches it: the samples before it are delivered (the last block may be short), then read()
+    raises RecordingError naming the line. Samples beyond the converter's range arrive clipped, and
+    are counted (counters.extra["clipped_samples"]).
+    """
 
     finite = True
 
@@ -54,55 +73,92 @@ class CsvReplaySource(Source):
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
-        self.recording = read_csv_recording(path)
-        self.fs_hz = self.recording.fs_hz
+        self.reader = open_recording_reader(path)
+        self.fs_hz = self.reader.fs_hz
         self.counters = HealthCounters()
+        for name in RECORDING_COUNTERS:
+            self.counters.extra[name] = 0
         self.rate = rate
         self.max_block_n = max(1, round(max_block_s * self.fs_hz))
         self._clock = clock
         self._sleep = sleep
-        self._next = 0
+        self._chunks: Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None] = self.reader.chunks()
+        self._ended = False
+        self._error: RecordingError | None = None  # found while reading on: raised once what was before it is delivered
+        # The samples read and not yet delivered.
+        self._time_s: NDArray[np.float64] = np.empty(0)
+        self._accel_mps2: NDArray[np.float64] = np.empty((0, 3))
+        self._delivered = 0
         self._start_wall_s: float | None = None
 
+    def _fill(self) -> None:
+        """Read on until a whole block is pending or the file has ended."""
+        while self._time_s.shape[0] < self.max_block_n and not self._ended:
+            try:
+                time_s, accel_mps2 = next(self._chunks)
+            except StopIteration:
+                self._ended = True
+                break
+            except RecordingError as exc:
+                self._ended, self._error = True, exc
+                break
+            finally:
+                clipped = self.reader.clipped_samples - self.counters.extra["clipped_samples"]
+                if clipped:
+                    self.counters.add("clipped_samples", clipped)
+            if self._time_s.shape[0]:
+                time_s = np.concatenate([self._time_s, time_s])
+                accel_mps2 = np.concatenate([self._accel_mps2, accel_mps2])
+            self._time_s, self._accel_mps2 = time_s, accel_mps2
+
     def _due_n(self) -> int:
-        """Samples whose time has come (all of them when unpaced)."""
-        rec = self.recording
+        """Pending samples whose time has come (all of them when unpaced)."""
         if self.rate == 0:
-            return rec.n_samples
+            return self._time_s.shape[0]
         if self._start_wall_s is None:
             self._start_wall_s = self._clock()
-        data_s = rec.time_s[0] + (self._clock() - self._start_wall_s) * self.rate
-        return int(np.searchsorted(rec.time_s, data_s, side="right"))
+        data_s = self.reader.start_s + (self._clock() - self._start_wall_s) * self.rate
+        return int(np.searchsorted(self._time_s, data_s, side="right"))
 
     def read(self, timeout_s: float) -> Block | None:
-        rec = self.recording
-        if self._next >= rec.n_samples:
+        self._fill()
+        pending = self._time_s.shape[0]
+        if pending == 0:
+            if self._error is not None:
+                raise self._error
             raise EndOfStream
         deadline = self._clock() + timeout_s
         while True:
-            due = self._due_n()
-            ready = min(due, self._next + self.max_block_n)
-            if ready - self._next == self.max_block_n or ready == rec.n_samples:
+            ready = min(self._due_n(), self.max_block_n)
+            if ready == self.max_block_n or ready == pending:
                 break
             left_s = deadline - self._clock()
             if left_s <= 0:
                 break
             assert self._start_wall_s is not None
-            wanted = min(self._next + self.max_block_n, rec.n_samples) - 1
-            due_wall_s = self._start_wall_s + (rec.time_s[wanted] - rec.time_s[0]) / self.rate
+            wanted = min(self.max_block_n, pending) - 1
+            due_wall_s = self._start_wall_s + (self._time_s[wanted] - self.reader.start_s) / self.rate
             self._sleep(max(1e-4, min(left_s, due_wall_s - self._clock())))
-        if ready == self._next:
+        if ready == 0:
             self.counters.timeouts += 1
             return None
         block = Block(
-            start_s=float(rec.time_s[self._next]),
+            start_s=float(self._time_s[0]),
             fs_hz=self.fs_hz,
-            accel_mps2=rec.accel_mps2[self._next : ready],
-            gap_before=self._next == 0,
+            accel_mps2=self._accel_mps2[:ready],
+            gap_before=self._delivered == 0,
         )
-        self._next = ready
-        self.counters.frames += block.n_samples
+        self._time_s, self._accel_mps2 = self._time_s[ready:], self._accel_mps2[ready:]
+        self._delivered += ready
+        self.counters.frames += ready
         return block
+
+    def close(self) -> None:
+        self._chunks.close()  # closes the file it reads
+
+
+# The name from before Parquet recordings.
+CsvReplaySource = RecordingReplaySource
 
 
 class CanLogReplaySource(Source):
@@ -210,11 +266,11 @@ class CanLogReplaySource(Source):
 class _ResumedAscReader(can.ASCReader):
     """An ASCReader reading on where another one failed, with the header settings that one read."""
 
-    def __init__(self, file: TextIO, failed: can.ASCReader) -> None:
+    def __init__(self, file: TextLines, failed: can.ASCReader) -> None:
         # The failed reader's base comes from the file's header, in any case ("base HEX" parses):
         # the constructor takes only "hex" or "dec"; anything else falls back to its default.
         base = str(failed.base).lower()
-        super().__init__(file, base=base if base in ("hex", "dec") else "hex", relative_timestamp=failed.relative_timestamp)
+        super().__init__(file, base=base if base in ("hex", "dec") else "hex", relative_timestamp=failed.relative_timestamp)  # type: ignore[arg-type]
         self.date = failed.date
         self.start_time = failed.start_time
         self.timestamps_format = failed.timestamps_format
@@ -252,8 +308,9 @@ class _LogEntries:
     """The messages of a CAN log; an entry python-can cannot parse is reported and skipped.
 
     Text logs are opened here (UTF-8, undecodable bytes replaced, so a bad byte spoils only its
-    own line) and a fresh reader goes on over the same file object from the line after the one
-    its predecessor failed on. A binary log cannot be resynchronised: the messages end there.
+    own line; a line longer than CAN_LOG_FILE allows is not even read whole) and a fresh reader
+    goes on over the same file object from the line after the one its predecessor failed on. A
+    binary log cannot be resynchronised: the messages end there.
     """
 
     RESUMABLE = (".log", ".asc")
@@ -261,24 +318,34 @@ class _LogEntries:
     def __init__(self, path: Path, on_unreadable: Callable[[str], None]) -> None:
         self.path = path
         self._on_unreadable = on_unreadable
-        self._file: TextIO | None = None
+        self._file: TextLines | None = None
         suffix = path.suffix.lower()
+        # A regular file within the size cap (drivers/files.py); a text log's lines are bounded too:
+        # a longer one is an unreadable line, counted and skipped like any other.
+        untrusted = open_untrusted(path, CAN_LOG_FILE, RecordingError)
         try:
-            if suffix in self.RESUMABLE:
-                self._file = path.open("r", encoding="utf-8", errors="replace", newline=None)
-                self._reader: can.io.generic.MessageReader = (
-                    can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)
-                )
-            elif suffix == ".blf":
-                self._reader = _CheckedBlfReader(str(path))
-            else:
-                self._reader = can.LogReader(str(path))
+            try:
+                if suffix in self.RESUMABLE:
+                    self._file = untrusted.text_lines()
+                    self._reader: can.io.generic.MessageReader = (
+                        can.CanutilsLogReader(self._file) if suffix == ".log" else can.ASCReader(self._file)  # type: ignore[arg-type]
+                    )
+                elif suffix == ".blf":
+                    self._reader = _CheckedBlfReader(untrusted)
+                else:
+                    untrusted.close()  # checked; python-can's reader for the suffix opens it by name
+                    self._reader = can.LogReader(str(path))
+            except BaseException:
+                untrusted.close()
+                raise
+        except RecordingError:  # drivers/files.py's own refusal, already naming the file
+            raise
         except OSError as exc:
             raise RecordingError(f"{path}: cannot read the CAN log: {exc.strerror or exc}") from None
         except ValueError as exc:
             if "unknown log format" in str(exc):  # python-can names no reader for the suffix
                 raise RecordingError(
-                    f"{path}: not a recording bogiemon replays: use a .csv recording or a CAN log "
+                    f"{path}: not a recording bogiemon replays: use a recording (.csv, .csv.gz, .parquet) or a CAN log "
                     "(.log from candump -L, .asc, .blf)"
                 ) from None
             raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
@@ -320,9 +387,10 @@ def open_replay(
     fs_hz: float,
     max_block_s: float = 1.0,
 ) -> Source:
-    """The replay source for a file: a .csv (or .csv.gz) recording, or a CAN log decoded with layout."""
-    if is_csv_recording_name(path):  # before python-can, which would read a .csv.gz as its own CSV log format
-        return CsvReplaySource(path, rate=rate, max_block_s=max_block_s)
+    """The replay source for a file: a recording of samples (.csv, .csv.gz, .parquet), or a CAN log
+    decoded with layout."""
+    if is_sample_recording_name(path):  # before python-can, which would read a .csv.gz as its own CSV log format
+        return RecordingReplaySource(path, rate=rate, max_block_s=max_block_s)
     if layout is None:
         raise RecordingError(f"{path}: a CAN log needs a DBC layout to be decoded")
     return CanLogReplaySource(path, layout, fs_hz, rate=rate, max_block_s=max_block_s)

@@ -23,9 +23,8 @@ from typing import Any
 import numpy as np
 import serial
 
-from bogiemon.drivers.base import Block, HealthCounters, Source
-from bogiemon.drivers.reconnect import Backoff
-from bogiemon.drivers.segments import SampleQueue, SequenceTracker, TimestampGuard
+from bogiemon.drivers.live import LiveSource
+from bogiemon.drivers.segments import SequenceTracker, TimestampGuard
 from bogiemon.drivers.serial_protocol import PACKET_SIZE, SEQUENCE_MODULUS, PacketParser
 
 SERIAL_COUNTERS = (
@@ -58,8 +57,15 @@ def open_serial_port(port: str, baudrate: int) -> serial.Serial:
     )
 
 
-class SerialSource(Source):
-    """Blocks from the serial ADC board (docs/drivers.md, serial protocol)."""
+class SerialSource(LiveSource[Any]):  # a pyserial port, or a test's double of one
+    """Blocks from the serial ADC board (docs/drivers.md, serial protocol).
+
+    The read loop, the counting and the reconnection are LiveSource's; this class opens and
+    closes the port and turns its bytes into samples.
+    """
+
+    device_errors = (serial.SerialException, OSError, termios.error)
+    open_errors = (*device_errors, ValueError)  # pyserial refuses some paths and settings with ValueError
 
     def __init__(
         self,
@@ -74,61 +80,40 @@ class SerialSource(Source):
         sleep: Callable[[float], None] = time.sleep,
         wall_clock: Callable[[], float] = time.time,
     ) -> None:
+        super().__init__(fs_hz, max_block_s, backoff_min_s, backoff_max_s, clock, sleep)
         self.port = port
         self.baudrate = baudrate
-        self.fs_hz = fs_hz
-        self.counters = HealthCounters()
+        self.description = f"serial port {port}"
         for name in SERIAL_COUNTERS:
             self.counters.extra[name] = 0
-        self.max_block_n = max(1, round(max_block_s * fs_hz))
         self._opener = opener
-        self._clock = clock
-        self._sleep = sleep
         self._wall_clock = wall_clock
-        self._backoff = Backoff(backoff_min_s, backoff_max_s, clock)
         self._parser = PacketParser()
         self._tracker = SequenceTracker(SEQUENCE_MODULUS, MAX_SILENCE_S)
         # Receive times come from the wall clock at each read, so a backlog read in two parts
         # overlaps by design: only non-finite and implausible stamps are refused, not late ones.
         self._guard = TimestampGuard(self.counters, tolerance_s=math.inf)
-        self._queue = SampleQueue(fs_hz)
-        self._serial: Any = None
-        self._opened_before = False
-        self._frames_at_open = 0
-        self._try_open()
+        self._start()
 
-    @property
-    def connected(self) -> bool:
-        return self._serial is not None
+    def _open(self) -> Any:
+        port = self._opener(self.port, self.baudrate)
+        port.reset_input_buffer()  # bytes queued while nobody listened are stale
+        return port
 
-    def read(self, timeout_s: float) -> Block | None:
-        deadline = self._clock() + timeout_s
-        while not self._queue.full_block_ready(self.max_block_n):
-            remaining_s = deadline - self._clock()
-            if remaining_s <= 0:
-                break
-            if self._serial is None and not self._try_open():
-                self._sleep(min(remaining_s, max(self._backoff.due_in_s(), 1e-3)))
-                continue
-            self._receive(remaining_s)
-        block = self._queue.take(self.max_block_n)
-        self.counters.gaps = self._queue.gaps
-        if block is None:
-            self.counters.timeouts += 1
-        return block
-
-    def _receive(self, remaining_s: float) -> None:
-        wanted_bytes = max(1, self.max_block_n - self._queue.n_pending) * PACKET_SIZE
-        try:
-            self._serial.timeout = remaining_s
-            # pyserial returns when wanted_bytes are in or the timeout expires: one wake-up
-            # per block rather than per packet.
-            data = self._serial.read(wanted_bytes)
-        except (serial.SerialException, OSError, termios.error) as exc:
-            self._lose_port(exc)
-            return
+    def _receive(self, device: Any, timeout_s: float, wanted_n: int) -> None:
+        device.timeout = timeout_s
+        # pyserial returns when wanted_n packets' bytes are in or the timeout expires: one
+        # wake-up per block rather than per packet.
+        data = device.read(wanted_n * PACKET_SIZE)
         if data:
             self._parse(data, self._wall_clock())
+
+    def _close(self, device: Any) -> None:
+        device.close()
+
+    def _restart(self) -> None:
+        self._parser.reset()
+        self._tracker.restart()
 
     def _parse(self, data: bytes, received_s: float) -> None:
         packets = self._parser.feed(data)
@@ -156,53 +141,3 @@ class SerialSource(Source):
             self.counters.add("lost_samples", verdict.lost)
         keep = verdict.accept
         self._queue.append(accel_mps2[keep], status[keep], verdict.new_segment[keep], times_s[keep])
-        if self.counters.frames > self._frames_at_open:
-            self._backoff.reset()
-
-    def _try_open(self) -> bool:
-        if self._backoff.due_in_s() > 0:
-            return False
-        try:
-            port = self._opener(self.port, self.baudrate)
-            port.reset_input_buffer()  # bytes queued while nobody listened are stale
-        except (serial.SerialException, OSError, termios.error, ValueError) as exc:
-            self.counters.add("open_failures")
-            wait_s = self._backoff.failed()
-            self.last_error = f"serial port {self.port}: cannot open: {_reason(exc)}; retrying in {wait_s:g} s"
-            return False
-        if self._opened_before:
-            self.counters.reconnects += 1
-        self._opened_before = True
-        self._serial = port
-        self._frames_at_open = self.counters.frames
-        self._restart()
-        return True
-
-    def _restart(self) -> None:
-        self._parser.reset()
-        self._tracker.restart()
-        self._queue.close_segment()
-
-    def _lose_port(self, exc: BaseException) -> None:
-        self.counters.add("disconnects")
-        wait_s = self._backoff.failed()
-        self.last_error = f"serial port {self.port}: lost: {_reason(exc)}; reopening in {wait_s:g} s"
-        self._close_port()
-        self._restart()
-
-    def _close_port(self) -> None:
-        port, self._serial = self._serial, None
-        if port is not None:
-            try:
-                port.close()
-            except (serial.SerialException, OSError, termios.error):
-                pass  # the device is already gone
-
-    def close(self) -> None:
-        self._close_port()
-
-
-def _reason(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -37,7 +37,7 @@ from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.sources import open_replay_source
 from bogiemon.daemon.windowing import BlockWindows, SegmentStart, Status
 from bogiemon.detection import WindowIndicators
-from bogiemon.drivers.atomic import write_atomically
+from bogiemon.drivers.atomic import final_name_of, write_atomically
 from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.fleet import rows
 from bogiemon.fleet.layout import Day, Fleet, InputFile, Issue, Wagon, scan_fleet
@@ -171,7 +171,7 @@ def _read(file: InputFile, task: DayTask) -> list[Block]:
     """A recording's blocks on Unix time; raises for what cannot be used (the caller names it)."""
     # Opened as `replay` and `run` open a recording (the config's [source] layout and DBC for a
     # CAN log), in larger blocks for a CSV (fewer calls; the windows do not depend on them).
-    source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_csv else None)
+    source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_samples else None)
     try:
         blocks = _blocks(source)
     finally:
@@ -344,8 +344,9 @@ def analyze_fleet(
     fleet = scan_fleet(root)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for stale in out.glob("wagon=*/date=*/.*.tmp"):  # a run killed while writing
-        stale.unlink(missing_ok=True)
+    for stale in out.glob("wagon=*/date=*/.*"):  # a run killed while writing
+        if final_name_of(stale.name) == PART_FILE:
+            stale.unlink(missing_ok=True)
     tasks = day_tasks(fleet, out)
     todo = [t for t in tasks if redo or not is_done(t)]
     results = [_reused(t) for t in tasks if t not in todo]

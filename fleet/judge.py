@@ -35,7 +35,7 @@ from bogiemon.daemon.vocabulary import LoadState, Mode
 from bogiemon.daemon.windowing import GapMemory, Windowed
 from bogiemon.drivers.atomic import write_atomically, write_text_atomically
 from bogiemon.fleet import rows
-from bogiemon.fleet.judged_files import JUDGED_FORMAT
+from bogiemon.fleet.judged_files import JUDGED_FORMAT, WagonState
 from bogiemon.fleet.analyze import SUMMARY_FILE, read_partition, segment_starts_of, wagon_partitions
 from bogiemon.fleet.layout import Fleet, Issue, Wagon, scan_fleet
 
@@ -67,6 +67,8 @@ class WagonJudged:
     series: pa.Table
     mode: Mode
     sensor_reported: dict[str, list[str]]
+    not_judged: bool  # a NOT_JUDGED in force at the end: running left unjudged for long
+    unjudged_running_s: float
     windows: int
     judged: int
     gated: int
@@ -165,7 +167,8 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
     c = monitor.counters
     return WagonJudged(
         wagon_id=wagon.wagon_id, events=tuple(log.committed), series=pa.Table.from_pydict(series.columns, schema=SERIES_SCHEMA),
-        mode=monitor.mode, sensor_reported=dict(monitor.sensor_reported), windows=c.windows, judged=c.judged, gated=c.gated,
+        mode=monitor.mode, sensor_reported=dict(monitor.sensor_reported), not_judged=monitor.coverage.reported,
+        unjudged_running_s=monitor.coverage.unjudged_running_s, windows=c.windows, judged=c.judged, gated=c.gated,
         sensor_fault_windows=c.sensor_fault_windows, trend=_finite(series.trend), trend_alarm=_finite(series.trend_alarm),
         days=tuple(days), evidence=mean_evidence, issues=tuple(issues),
     )  # fmt: skip
@@ -175,15 +178,17 @@ def _finite(value: float | None) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
 
-def state_of(judged: WagonJudged) -> str:
+def state_of(judged: WagonJudged) -> WagonState:
     """The wagon's state on the fleet page (wagons.json's words: docs/fleet-formats.md)."""
     if judged.windows == 0:
-        return "NO_DATA"
+        return WagonState.NO_DATA
     if judged.mode is Mode.CONFIRMED:
-        return "CONFIRMED"
+        return WagonState.CONFIRMED
     if judged.sensor_reported:
-        return "SENSOR_FAULT"
-    return judged.mode.name  # SUSPECTED or NORMAL
+        return WagonState.SENSOR_FAULT
+    if judged.not_judged:
+        return WagonState.NOT_JUDGED
+    return WagonState(judged.mode.name)  # SUSPECTED or NORMAL
 
 
 # --------------------------------------------------------------------------------------------
@@ -271,7 +276,10 @@ def _unique(issues: Sequence[Issue]) -> list[Issue]:
     return out
 
 
-ATTENTION = {"CONFIRMED": 1000.0, "SENSOR_FAULT": 500.0, "SUSPECTED": 300.0, "NORMAL": 0.0, "NO_DATA": 50.0}
+ATTENTION = {
+    WagonState.CONFIRMED: 1000.0, WagonState.SENSOR_FAULT: 500.0, WagonState.NOT_JUDGED: 400.0, WagonState.SUSPECTED: 300.0,
+    WagonState.NORMAL: 0.0, WagonState.NO_DATA: 50.0,
+}  # fmt: skip
 STANDS_OUT_ATTENTION = 200.0
 
 
@@ -280,9 +288,9 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
     last_seq, last = j.events[-1] if j.events else (0, None)
     confirmed = [e for _, e in j.events if e.kind is EventKind.CONFIRMED]
     diagnosis = None
-    if state == "CONFIRMED" and confirmed:
+    if state is WagonState.CONFIRMED and confirmed:
         d = confirmed[-1].details.get("diagnosis") or {}
-        diagnosis = {k: d.get(k) for k in ("corner", "kind", "corner_confidence", "kind_confidence")}
+        diagnosis = {k: d.get(k) for k in ("corner", "corners", "kind", "corner_confidence", "kind_confidence")}
     trend_ratio = (j.trend / j.trend_alarm) if j.trend is not None and j.trend_alarm else 0.0
     # Within a state: the trend's share of its alarm level orders the wagons (0..100).
     attention = ATTENTION[state] + min(max(trend_ratio, 0.0), 1.0) * 100.0
@@ -293,6 +301,11 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
     missing = [ld for ld in ran_in if ld not in wagon.commissioned]
     if missing:
         notes.append(f"not commissioned for {', '.join(missing)}: judged against the fleet's population baseline, which misses most faults (`bogiemon fleet calibrate {wagon.wagon_id}`)")
+    if j.not_judged:
+        notes.append(
+            f"not judged for the last {j.unjudged_running_s / 3600:.1f} h of running: the wagon is unlike its commissioning; "
+            "inspect it, or commission it again"
+        )
     skipped = list(j.issues)
     if skipped:
         notes.append(f"{len(skipped)} input(s) skipped: " + "; ".join(f"{Path(i.path).name}: {i.reason}" for i in skipped[:3]))

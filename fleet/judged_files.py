@@ -7,6 +7,7 @@ copied, edited or cut short on the way, so the page never trusts them.
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 import re
@@ -21,10 +22,24 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from bogiemon.daemon.events import EventKind
 from bogiemon.daemon.messages import TIME_S_MAX, TIME_S_MIN, EventMessage, SchemaError, decode, printable
 
-STATES = ("CONFIRMED", "SUSPECTED", "SENSOR_FAULT", "NORMAL", "NO_DATA")
-EVENT_KINDS = ("SUSPECTED", "CONFIRMED", "CLEARED", "SENSOR_FAULT", "SENSOR_CLEARED")
+
+
+class WagonState(enum.StrEnum):
+    """A wagon's state on the fleet page (wagons.json), most urgent first."""
+
+    CONFIRMED = "CONFIRMED"
+    SENSOR_FAULT = "SENSOR_FAULT"
+    NOT_JUDGED = "NOT_JUDGED"  # a NOT_JUDGED in force: running left unjudged for long
+    SUSPECTED = "SUSPECTED"
+    NORMAL = "NORMAL"
+    NO_DATA = "NO_DATA"
+
+
+STATES = tuple(WagonState)
+EVENT_KINDS = tuple(k.value for k in EventKind)
 # A wagon id as the back office writes folders (docs/fleet-formats.md section 1); a series is
 # read only for such an id, so a hostile id in wagons.json never names a path outside series/.
 WAGON_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")

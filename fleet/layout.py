@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
+from bogiemon.drivers.recording import is_sample_recording_name
 
 FLEET_FILE = "fleet.toml"
 WAGON_CONFIG = "bogiemon.toml"
@@ -23,7 +24,6 @@ CALIBRATION = "calibration.toml"
 DEFAULT_TYPE = "unspecified"
 WAGON_ID = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
 DAY = re.compile(r"^\d{4}-\d{2}-\d{2}$")
-CSV_SUFFIXES = (".csv", ".csv.gz")
 CAN_LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc")
 IGNORED_SUFFIXES = (".json",)  # the simulator's sidecars and truth: what was simulated, not recordings
 
@@ -56,8 +56,9 @@ class InputFile:
         return (self.path.name, self.size_bytes, self.mtime_ns)
 
     @property
-    def is_csv(self) -> bool:
-        return recording_kind(self.path.name) == "csv"
+    def is_samples(self) -> bool:
+        """A recording of samples (CSV or Parquet), not a CAN log."""
+        return recording_kind(self.path.name) == "samples"
 
 
 @dataclass(frozen=True)
@@ -106,10 +107,10 @@ class Fleet:
 
 
 def recording_kind(name: str) -> str | None:
-    """'csv', 'can' or None (not a recording) from a file name."""
+    """'samples' (CSV, .csv.gz, Parquet), 'can' (a CAN log) or None (not a recording) from a file name."""
     lower = name.lower()
-    if lower.endswith(CSV_SUFFIXES):
-        return "csv"
+    if is_sample_recording_name(lower):
+        return "samples"
     if lower.endswith(CAN_LOG_SUFFIXES):
         return "can"
     return None

@@ -21,8 +21,11 @@ from bogiemon.fleet import svg
 from bogiemon.fleet.judged_files import EMPTY_SERIES, Series, WagonPage
 
 # The colours a keeper learns once: the badges, the event markers and the plot lines.
-STATE_COLOURS = {"CONFIRMED": "#c62828", "SUSPECTED": "#ffb300", "SENSOR_FAULT": "#7b1fa2", "NORMAL": "#2e7d32", "NO_DATA": "#757575"}
-EVENT_COLOURS = {"SUSPECTED": "#e69500", "CONFIRMED": "#c62828", "CLEARED": "#2e7d32", "SENSOR_FAULT": "#7b1fa2", "SENSOR_CLEARED": "#546e7a"}
+STATE_COLOURS = {"CONFIRMED": "#c62828", "SUSPECTED": "#ffb300", "SENSOR_FAULT": "#7b1fa2", "NOT_JUDGED": "#d84315", "NORMAL": "#2e7d32", "NO_DATA": "#757575"}
+EVENT_COLOURS = {
+    "SUSPECTED": "#e69500", "CONFIRMED": "#c62828", "CLEARED": "#2e7d32", "SENSOR_FAULT": "#7b1fa2", "SENSOR_CLEARED": "#546e7a",
+    "NOT_JUDGED": "#d84315", "JUDGED_AGAIN": "#546e7a",
+}  # fmt: skip
 EVENT_TEXT_COLOURS = {**EVENT_COLOURS, "SUSPECTED": "#b36b00"}  # the amber of a line is too light for text
 SCORE_COLOUR, TREND_COLOUR = "#1565c0", "#00838f"
 WARNING_COLOUR, ALARM_COLOUR = "#e69500", "#c62828"

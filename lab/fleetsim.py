@@ -37,14 +37,13 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import json
-import os
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bogiemon.drivers.atomic import write_text_atomically
+from bogiemon.drivers.atomic import write_atomically, write_text_atomically
 from bogiemon.daemon import tomlout
 from bogiemon.detection import PAPER_LAYOUT, Corner
 from bogiemon.lab.robust.fleet import (
@@ -540,17 +539,11 @@ def _write_wagon_config(root: Path, plan: FleetPlan, wagon: int) -> Path:
 
 def _write_recording(path: Path, time_s: Any, accel_mps2: Any) -> None:
     """A gzip CSV recording, by drivers/recording.py's writer (gzip for a name ending in .gz, with no
-    time stamp in its header: the same samples give the same bytes), renamed into place whole."""
+    time stamp in its header: the same samples give the same bytes), written whole or not at all."""
     from bogiemon.drivers.recording import write_csv_recording
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    # Hidden, and not a recording's name (*.csv.gz) while it is written; .gz: compressed alike.
-    partial = path.with_name(f".{path.name.removesuffix('.csv.gz')}.partial.gz")
-    try:
-        write_csv_recording(partial, time_s, accel_mps2)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+    write_atomically(path, lambda temporary: write_csv_recording(temporary, time_s, accel_mps2))
 
 
 

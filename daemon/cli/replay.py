@@ -15,8 +15,8 @@ if TYPE_CHECKING:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("replay", help="run recordings (CSV or CAN logs) through the daemon's pipeline and print its events")
-    p.add_argument("files", nargs="+", metavar="RECORDING", help="CSV recordings or CAN logs (.log, .asc, .blf), in time order")
+    p = sub.add_parser("replay", help="run recordings (CSV, Parquet or CAN logs) through the daemon's pipeline and print its events")
+    p.add_argument("files", nargs="+", metavar="RECORDING", help="recordings (.csv, .csv.gz, .parquet) or CAN logs (.log, .asc, .blf), in time order")
     p.add_argument("--config", help="config file (default: the shipped default config)")
     p.add_argument("--load", choices=("auto", "full", "tare"), help="load state, overriding decision.load (auto: estimated from the signals)")
     p.add_argument("--json", action="store_true", help="events as JSON lines")
@@ -41,7 +41,18 @@ def run(args: argparse.Namespace) -> int:
         line = report.skipped_text()
         if line is not None:
             print(line, file=sys.stderr)
+        clipped = report.source_counters.get("clipped_samples", 0)
+        if clipped:
+            print(clipped_text(report.path, clipped), file=sys.stderr)
     return 0
+
+
+def clipped_text(path: str, clipped: int) -> str:
+    """The line saying a recording's samples beyond the converter's range were clipped."""
+    from bogiemon.drivers.recording import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2
+
+    what = "sample" if clipped == 1 else "samples"
+    return f"{path}: clipped {clipped} {what} beyond the converter's range to its full scale ({MIN_ACCEL_MPS2:.4f} .. {MAX_ACCEL_MPS2:+.4f} m/s^2)"
 
 
 def print_sink(as_json: bool) -> EventSink:

@@ -138,4 +138,7 @@ class Delivery(EventSink):
             windows=monitor.counters.windows,
             events=monitor.counters.events,
             outbox_pending=outbox.pending if outbox is not None else 0,
+            judged_windows=monitor.counters.judged,
+            not_judged=monitor.coverage.reported,
+            unjudged_running_s=monitor.coverage.unjudged_running_s,
         )

@@ -1,4 +1,5 @@
-"""Alarms on the CAN bus: CONFIRMED and CLEARED as BogieAlarm frames, and a BogieHeartbeat.
+"""Alarms on the CAN bus: CONFIRMED, CLEARED, NOT_JUDGED and JUDGED_AGAIN as BogieAlarm frames (a
+CONFIRMED followed by its BogieDiagnosis), and a BogieHeartbeat with its BogieCoverage.
 
 For a telematics unit on the wagon's bus that forwards alarms itself. The frames are messages of
 the DBC (config/bogiemon.dbc, docs/mqtt.md), encoded with the compiled codecs of drivers/candb.py.
@@ -26,12 +27,17 @@ from bogiemon.daemon.events import INDICATOR_FIELDS
 from bogiemon.daemon.events import Event, EventKind, Severity
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.sinks import EventSink
+from bogiemon.detection.kinematics import Corner
 from bogiemon.drivers.candb import DbcError, MessageCodec, compile_message, shipped_dbc_text
 from bogiemon.drivers.player import PlayError, open_player_bus
 from bogiemon.drivers.reconnect import Backoff
 
 ALARM_MESSAGE, HEARTBEAT_MESSAGE = "BogieAlarm", "BogieHeartbeat"
-ALARM_KINDS = {EventKind.CONFIRMED: 1, EventKind.CLEARED: 2}  # the events that make a frame
+DIAGNOSIS_MESSAGE, COVERAGE_MESSAGE = "BogieDiagnosis", "BogieCoverage"
+# The events that make a frame.
+ALARM_KINDS = {EventKind.CONFIRMED: 1, EventKind.CLEARED: 2, EventKind.NOT_JUDGED: 3, EventKind.JUDGED_AGAIN: 4}
+CORNER_BITS = {Corner.LEADING_LEFT: 1, Corner.LEADING_RIGHT: 2, Corner.TRAILING_LEFT: 4, Corner.TRAILING_RIGHT: 8}
+TRIGGER_CODES = {"windows": 1, "trend": 2}  # 0: none
 SEVERITY_CODES = {Severity.INFO: 0, Severity.WARNING: 1, Severity.ALARM: 2}
 INDICATOR_CODES = {name: i + 1 for i, name in enumerate(INDICATOR_FIELDS)}  # 0: none
 MODE_CODES = {"normal": 0, "suspected": 1, "confirmed": 2}
@@ -52,6 +58,8 @@ BusOpener = Callable[[str, str], can.BusABC]
 class AlarmCodecs:
     alarm: MessageCodec
     heartbeat: MessageCodec
+    diagnosis: MessageCodec
+    coverage: MessageCodec
 
 
 def load_alarm_codecs(dbc_path: str | Path | None = None) -> AlarmCodecs:
@@ -68,6 +76,8 @@ def load_alarm_codecs(dbc_path: str | Path | None = None) -> AlarmCodecs:
     needs = {
         ALARM_MESSAGE: ("Counter", "Kind", "Severity", "Indicator", "Fired", "Value", "EventRef"),
         HEARTBEAT_MESSAGE: ("Counter", "Mode", "SensorsOk", "Judged", "Gate", "MqttLink", "AlarmCounter", "Windows", "Events", "OutboxPending"),
+        DIAGNOSIS_MESSAGE: ("Counter", "Corners", "Trigger", "Confidence", "EventRef"),
+        COVERAGE_MESSAGE: ("Counter", "NotJudged", "UnjudgedRunning", "JudgedWindows"),
     }
     codecs = {}
     for name, signals in needs.items():
@@ -78,7 +88,7 @@ def load_alarm_codecs(dbc_path: str | Path | None = None) -> AlarmCodecs:
         if missing:
             raise DbcError(f"{source}: message '{name}' lacks signal(s) {', '.join(missing)}")
         codecs[name] = codec
-    return AlarmCodecs(codecs[ALARM_MESSAGE], codecs[HEARTBEAT_MESSAGE])
+    return AlarmCodecs(codecs[ALARM_MESSAGE], codecs[HEARTBEAT_MESSAGE], codecs[DIAGNOSIS_MESSAGE], codecs[COVERAGE_MESSAGE])
 
 
 def worst_indicator(event: Event) -> tuple[str | None, float]:
@@ -106,9 +116,32 @@ def alarm_payload(codecs: AlarmCodecs, event: Event, counter: int) -> bytes:
         "Indicator": INDICATOR_CODES.get(name, 0) if name is not None else 0,
         "Fired": min(15, len(event.indicators)),
         "Value": int(value_raw[0]),
-        "EventRef": int(event.event_id[:6], 16) if _is_hex(event.event_id[:6]) else 0,
+        "EventRef": _event_ref(event),
     }
     return _encode(codecs.alarm, raw)
+
+
+def _event_ref(event: Event) -> int:
+    return int(event.event_id[:6], 16) if _is_hex(event.event_id[:6]) else 0
+
+
+def diagnosis_payload(codecs: AlarmCodecs, event: Event, alarm_counter: int) -> bytes:
+    """The BogieDiagnosis of a CONFIRMED: the corners it names (a bit each), its trigger and confidence."""
+    details = event.details if isinstance(event.details, dict) else {}
+    diagnosis = details.get("diagnosis") if isinstance(details.get("diagnosis"), dict) else {}
+    corners = 0
+    for name in diagnosis.get("corners", []) if isinstance(diagnosis.get("corners"), list) else []:
+        corners |= next((bit for c, bit in CORNER_BITS.items() if c.value == name), 0)
+    confidence = diagnosis.get("corner_confidence", 0.0)
+    confidence = float(confidence) if isinstance(confidence, int | float) and confidence == confidence else 0.0
+    raw = {
+        "Counter": alarm_counter % 256,
+        "Corners": corners,
+        "Trigger": TRIGGER_CODES.get(str(details.get("trigger")), 0),
+        "Confidence": min(100, max(0, int(100 * confidence))),  # floored: never rounded up to a certainty
+        "EventRef": _event_ref(event),
+    }
+    return _encode(codecs.diagnosis, raw)
 
 
 @dataclass(frozen=True)
@@ -124,6 +157,9 @@ class Heartbeat:
     windows: int
     events: int
     outbox_pending: int
+    judged_windows: int = 0
+    not_judged: bool = False  # a NOT_JUDGED in force (daemon/coverage.py)
+    unjudged_running_s: float = 0.0  # running left unjudged since the last judged window
 
 
 def heartbeat_payload(codecs: AlarmCodecs, beat: Heartbeat, counter: int, alarm_counter: int) -> bytes:
@@ -140,6 +176,16 @@ def heartbeat_payload(codecs: AlarmCodecs, beat: Heartbeat, counter: int, alarm_
         "OutboxPending": min(255, beat.outbox_pending),
     }
     return _encode(codecs.heartbeat, raw)
+
+
+def coverage_payload(codecs: AlarmCodecs, beat: Heartbeat, counter: int) -> bytes:
+    raw = {
+        "Counter": counter % 256,
+        "NotJudged": int(beat.not_judged),
+        "UnjudgedRunning": min(65535, int(beat.unjudged_running_s // 60)),
+        "JudgedWindows": beat.judged_windows % 65536,
+    }
+    return _encode(codecs.coverage, raw)
 
 
 def _encode(codec: MessageCodec, raw: dict[str, int]) -> bytes:
@@ -160,7 +206,8 @@ class CanAlarmCounters:
 
 
 class CanAlarmSink(EventSink):
-    """Queues CONFIRMED and CLEARED events; its thread sends them and the heartbeat."""
+    """Queues the events of ALARM_KINDS; its thread sends them (a CONFIRMED with its diagnosis) and
+    the heartbeat with its coverage."""
 
     def __init__(
         self,
@@ -254,6 +301,9 @@ class CanAlarmSink(EventSink):
                 self.counters.alarms_dropped += 1
             payload = alarm_payload(self.codecs, event, self._alarm_counter)
             self._frames.append(self._message(self.codecs.alarm, payload))
+            if event.kind is EventKind.CONFIRMED:
+                diagnosis = diagnosis_payload(self.codecs, event, self._alarm_counter)
+                self._frames.append(self._message(self.codecs.diagnosis, diagnosis))
             try:
                 event = self._events.get_nowait()
             except queue.Empty:
@@ -265,15 +315,19 @@ class CanAlarmSink(EventSink):
             if not self._send(bus, frame):
                 return None
             self._frames.popleft()
-            self._sent_alarm_counter = frame.data[0]
-            self.counters.alarms_sent += 1
+            if frame.arbitration_id == self.codecs.alarm.frame_id:
+                self._sent_alarm_counter = frame.data[0]
+                self.counters.alarms_sent += 1
         return bus
 
     def _send_heartbeat(self, bus: can.BusABC) -> can.BusABC | None:
         assert self.heartbeat_source is not None
         self._beat_counter = (self._beat_counter + 1) % 256
-        payload = heartbeat_payload(self.codecs, self.heartbeat_source(), self._beat_counter, self._sent_alarm_counter)
+        beat = self.heartbeat_source()
+        payload = heartbeat_payload(self.codecs, beat, self._beat_counter, self._sent_alarm_counter)
         if not self._send(bus, self._message(self.codecs.heartbeat, payload)):
+            return None
+        if not self._send(bus, self._message(self.codecs.coverage, coverage_payload(self.codecs, beat, self._beat_counter))):
             return None
         self.counters.heartbeats_sent += 1
         return bus

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from bogiemon.daemon.events import INDICATOR_FIELDS
-from bogiemon.daemon.messages import LatestWindow, OutboxStatus, SchemaError, StatusMessage, describe
+from bogiemon.daemon.messages import CoverageStatus, LatestWindow, OutboxStatus, SchemaError, StatusMessage, describe
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.outbox import OutboxCounts
 
@@ -46,6 +46,11 @@ def _status_from_monitor(monitor: Monitor, wagon_id: str, time_s: float, outbox:
         config_hash=monitor.settings.config_hash,
         window=window,
         counters=dict(vars(monitor.counters)),
+        coverage=CoverageStatus(
+            not_judged=monitor.coverage.reported,
+            unjudged_running_s=monitor.coverage.unjudged_running_s,
+            last_judged_s=monitor.coverage.since_s,
+        ),
         outbox=OutboxStatus(
             pending_events=outbox.pending_events,
             pending_alarms=outbox.pending_alarms,

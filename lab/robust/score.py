@@ -14,8 +14,9 @@ Every figure of docs/robust comes from here, by rules fixed before the results w
 - FALSE ALARMS: CONFIRMED events in the healthy test runs (and in the fault runs' healthy
   lead-in), per hour of running; SUSPECTED per hour beside them.
 - LOAD STATE: the share of judged windows whose load state (configured or estimated) is the run's.
-- CORNER AND KIND: of the detected runs, the share whose diagnosis names the fault's corner and
-  kind; "unknown" counts as wrong, and its share is given.
+- CORNER AND KIND: of the detected runs, the share whose diagnosis names the fault's corner among
+  the corners it names (a diagonal pair: daemon/diagnosis.py) and its kind; "unknown" counts as
+  not right, and its share is given; named corners without the fault's are wrong.
 - SENSOR FAULTS: a damaged-sensor run is recognised when a SENSOR_FAULT names the expected problem
   on every expected channel; it must never raise SUSPECTED or CONFIRMED. A SENSOR_FAULT in a
   healthy test run is false (per run, as the SUSPECTED runs).
@@ -30,8 +31,9 @@ from __future__ import annotations
 import math
 import statistics
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from bogiemon.lab.robust.fleet import DETECTION_HORIZON_S, EXPECTED_PROBLEM, EvaluationData
 from bogiemon.lab.robust.judge import RunResult, SequenceResult
@@ -188,6 +190,15 @@ def _faulty_ratios(r: RunResult, window_s: float) -> list[float]:
     return [x for x, end in zip(r.ratios, r.window_ends_s, strict=True) if x is not None and end - window_s >= r.run.onset_s - 1e-9]
 
 
+def named_corners(diagnosis: Mapping[str, Any] | None) -> tuple[str, ...]:
+    """The corners a diagnosis names: its pair, one corner (events written before the pair), or none."""
+    d = diagnosis or {}
+    if "corners" in d:
+        return tuple(d["corners"])
+    corner = d.get("corner", "unknown")
+    return () if corner == "unknown" else (corner,)
+
+
 def _sequence_cells(results: Sequence[SequenceResult]) -> list[SequenceCell]:
     cells: dict[tuple[str, float], list[SequenceResult]] = {}
     for r in results:
@@ -205,7 +216,7 @@ def _sequence_cells(results: Sequence[SequenceResult]) -> list[SequenceCell]:
                 detected=len(found),
                 by_trend=sum(r.trigger == "trend" for r in found),
                 times_s=tuple(float(r.confirmed_after_s) for r in found),  # type: ignore[arg-type]
-                corner_right=sum((r.diagnosis or {}).get("corner") == c for r, c in zip(found, corner, strict=True)),
+                corner_right=sum(c in named_corners(r.diagnosis) for r, c in zip(found, corner, strict=True)),
                 kind_right=sum((r.diagnosis or {}).get("kind") == r.first.kind for r in found),
             )
         )
@@ -267,9 +278,9 @@ def score_method(
                 detected=len(detected),
                 times_s=tuple(float(r.confirmed_s - r.run.onset_s) for r in detected),  # type: ignore[operator]
                 by_corner={k: (v[0], v[1]) for k, v in sorted(by_corner.items())},
-                corner_right=sum(d.get("corner") == (r.run.corner.value if r.run.corner else None) for r, d in diagnoses),
+                corner_right=sum((r.run.corner.value if r.run.corner else None) in named_corners(d) for r, d in diagnoses),
                 kind_right=sum(d.get("kind") == r.run.kind for r, d in diagnoses),
-                unknown_corner=sum(d.get("corner", "unknown") == "unknown" for _, d in diagnoses),
+                unknown_corner=sum(not named_corners(d) for _, d in diagnoses),
                 ratios=tuple(ratios),
             )
         )

@@ -81,7 +81,7 @@ def test_three_alarm_windows_of_five_confirm_by_windows() -> None:
     kinds = [(i, k) for i, k, _ in events]
     assert kinds == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
     assert events[-1][2]["trigger"] == "windows"
-    assert events[-1][2]["diagnosis"]["corner"] == "leading-left"
+    assert events[-1][2]["diagnosis"]["corner"] == "leading-left or trailing-right"
 
 
 def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> None:
@@ -99,7 +99,7 @@ def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> N
     expected = next(k for k in range(200) if 12.5 * (1 - (1 - weight) ** (k + 1)) ** 2 >= 8.0)
     assert i == expected
     assert details["trigger"] == "trend"
-    assert details["diagnosis"]["corner"] == "leading-left" and details["diagnosis"]["kind"] == "unknown"
+    assert details["diagnosis"]["corners"] == ["leading-left", "trailing-right"] and details["diagnosis"]["kind"] == "unknown"
     assert details["trend"] == pytest.approx(12.5 * (1 - (1 - weight) ** (i + 1)) ** 2)
     assert [k for _, k, _ in events][0] is EventKind.SUSPECTED
 

@@ -251,3 +251,19 @@ def test_a_reload_that_changes_the_processing_restarts_the_windows_and_says_so(
     assert feed.statuses == ["reloaded: the windows restart, the next is judged 6 s of data from now"]
     # 30 s at a 2 s hop, then the windows restart: 30 s at a 3 s hop.
     assert len(windows) == ((30 - 6) // 2 + 1) + ((30 - 6) // 3 + 1)
+
+
+def test_service_keeps_blas_to_one_thread_while_it_runs_and_restores_it_after(short_config: Path) -> None:
+    from bogiemon.daemon.blas import loaded_blas_libraries
+
+    libraries = loaded_blas_libraries()
+    if not libraries or all(lib.get_num_threads() == 1 for lib in libraries):
+        pytest.skip("no OpenBLAS with more than one thread here: nothing for the service to limit")
+    before = [lib.get_num_threads() for lib in libraries]
+    seen: list[list[int]] = []
+    blocks = as_blocks(bogie_accel(30, seed=2))
+    service = Service(short_config, lambda config: FiniteMemorySource(blocks), sinks=[],
+                      observers=[lambda report: seen.append([lib.get_num_threads() for lib in libraries])])  # fmt: skip
+    assert service.run() == 0
+    assert seen and all(counts == [1] * len(libraries) for counts in seen)
+    assert [lib.get_num_threads() for lib in libraries] == before

@@ -6,16 +6,20 @@ its instant exactly and any reordering, bridging or corruption shows.
 
 from __future__ import annotations
 
+import socket
 import uuid
 from pathlib import Path
+from typing import Any, ClassVar
 
 import can
 import can.interfaces.virtual
 import numpy as np
+from can.interfaces.socketcan.socketcan import SocketcanBus, build_can_frame
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block
 from bogiemon.drivers.can_decode import max_silence_s
+from bogiemon.drivers.can_frames import SO_TIMESTAMPNS
 from bogiemon.drivers.candb import CanLayout, load_layout
 from bogiemon.drivers.player import encode_instants
 from bogiemon.drivers.recording import write_csv_recording
@@ -40,6 +44,66 @@ def stamped_sender(channel: str) -> can.BusABC:
     as a silence and so as a new segment.
     """
     return can.interfaces.virtual.VirtualBus(channel=channel, preserve_timestamps=True)
+
+
+class DatagramCanBus(can.BusABC):
+    """A SocketCAN bus on a UDP socket of this kernel, which has no AF_CAN; the test double of SocketcanBus.
+
+    Its socket delivers the kernel's `struct can_frame` datagrams with SO_TIMESTAMPNS receive
+    times, as a CAN_RAW socket does, and python-can's own SocketcanBus receive code reads it
+    (`_recv_internal`: select, then capture_message), so the same bytes can be read both ways.
+    Frames reach it from send_frames. Every bus made is kept in `made`, newest last.
+    """
+
+    made: ClassVar[list[DatagramCanBus]] = []
+    _recv_internal = SocketcanBus._recv_internal
+
+    def __init__(self, channel: str = "", **settings: Any) -> None:
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket.bind(("127.0.0.1", 0))
+        self.socket.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        self.address = self.socket.getsockname()
+        self.channel = channel
+        self._is_filtered = False
+        super().__init__(channel=channel)
+        DatagramCanBus.made.append(self)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # pragma: no cover - a receiver
+        raise NotImplementedError("send to a DatagramCanBus with send_frames")
+
+    def shutdown(self) -> None:
+        self.socket.close()
+        super().shutdown()
+
+
+class DatagramSender(can.BusABC):
+    """A sending end for a DatagramCanBus: each message goes to its address as one struct can_frame datagram."""
+
+    def __init__(self, address: tuple[str, int]) -> None:
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.address = address
+        self.channel_info = f"datagrams to {address[0]}:{address[1]}"
+        super().__init__(channel="")
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.socket.sendto(build_can_frame(msg), self.address)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:  # pragma: no cover - a sender
+        return None, False
+
+    def shutdown(self) -> None:
+        self.socket.close()
+        super().shutdown()
+
+
+def send_frames(address: tuple[str, int], messages: list[can.Message]) -> None:
+    """The messages as struct can_frame datagrams to a DatagramCanBus's address, in order."""
+    sender = DatagramSender(address)
+    try:
+        for message in messages:
+            sender.send(message)
+    finally:
+        sender.shutdown()
 
 
 def silences_heard(listener: can.BusABC, layout: CanLayout) -> int:

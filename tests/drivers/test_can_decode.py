@@ -13,7 +13,7 @@ from can.interfaces.virtual import VirtualBus
 from bogiemon.drivers.base import HealthCounters
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.can_source import BusPort, CanSource
-from bogiemon.drivers.candb import CanLayout
+from bogiemon.drivers.candb import CanLayout, load_layout, shipped_dbc_text
 from bogiemon.drivers.segments import CLOCK_STEP_AFTER, SampleQueue
 from tests.drivers.frames import FS_HZ, HUB, PER_NODE, channel_name, check_blocks, layout_frames
 
@@ -125,3 +125,22 @@ def test_the_live_can_source_counts_a_frame_with_an_unusable_time_stamp_and_neve
     assert source.counters.extra["bad_timestamps"] == source.counters.bad_frames == 1
     assert [(s[0], s[-1]) for s in check_blocks(blocks)] == [(0, 99), (101, 199)]
     assert all(1000.0 <= b.start_s < 1001.0 for b in blocks)
+
+
+def test_per_node_frames_laid_out_differently_per_node_decode_each_with_its_own_signals(tmp_path) -> None:
+    # SensorNode2 with its acceleration in bytes 1-2 and its flags in byte 3: the DBC may lay the nodes out apart.
+    text = shipped_dbc_text()
+    node2 = text.index("BO_ 258 SensorNode2")
+    end = text.index("BO_ 259")
+    moved = (
+        text[node2:end]
+        .replace("SG_ OverRange : 8|1@1+", "SG_ OverRange : 24|1@1+")
+        .replace("SG_ SensorFault : 9|1@1+", "SG_ SensorFault : 25|1@1+")
+        .replace("SG_ Accel : 16|16@1-", "SG_ Accel : 8|16@1-")
+    )
+    (tmp_path / "nodes.dbc").write_text(text[:node2] + moved + text[end:])
+    layout = load_layout(tmp_path / "nodes.dbc", "per-node")
+    assert layout.nodes[1].signals["Accel"].shift == 8
+    blocks, counters = decode(layout, layout_frames(layout, np.arange(120)))
+    np.testing.assert_array_equal(np.concatenate(check_blocks(blocks)), np.arange(120))
+    assert counters.bad_frames == counters.extra["lost_samples"] == 0

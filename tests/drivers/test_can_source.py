@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bogiemon.drivers.base import HealthCounters, SensorStatus
-from bogiemon.drivers.can_decode import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CanFrameDecoder
+from bogiemon.drivers.can_decode import CanFrameDecoder
+from bogiemon.drivers.can_frames import CAN_ERR_BUSOFF, CAN_ERR_CRTL, BusFrameReader, SocketFrameReader
 from bogiemon.drivers.can_source import BusPort, CanBusPort, CanSource, set_receive_buffer, socket_drops
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import UnknownBusKind
@@ -24,10 +25,12 @@ from tests.drivers.frames import (
     FS_HZ,
     HUB,
     PER_NODE,
+    DatagramCanBus,
     channel_name,
     check_blocks,
     coded_accel,
     layout_frames,
+    send_frames,
     stamped_sender,
 )
 
@@ -378,6 +381,110 @@ def test_a_port_of_an_unknown_kind_is_refused_when_made() -> None:
         CanBusPort("pcan", "can0")
 
 
+# ---- the socketcan kind, on a datagram socket carrying struct can_frame (this kernel has no AF_CAN)
+
+
+@pytest.fixture
+def datagram_socketcan(monkeypatch: pytest.MonkeyPatch) -> list[DatagramCanBus]:
+    """The socketcan kind opens DatagramCanBus instead of SocketcanBus; the buses made, newest last."""
+    monkeypatch.setattr(can.interfaces.socketcan, "SocketcanBus", DatagramCanBus)
+    monkeypatch.setattr(DatagramCanBus, "made", [])
+    return DatagramCanBus.made
+
+
+def send_and_read(source: CanSource, bus: DatagramCanBus, frames: list[can.Message], n: int, chunk: int = 100) -> list:
+    """Send frames in chunks the socket's default buffer holds, reading each before the next; n samples in all."""
+    blocks: list = []
+    for i in range(0, len(frames), chunk):
+        send_frames(bus.address, frames[i : i + chunk])
+        blocks += read_all(source, n - sum(b.n_samples for b in blocks)) if i + chunk >= len(frames) else [source.read(0.02)]
+    return [b for b in blocks if b is not None]
+
+
+def test_the_socketcan_kind_reads_its_socket_in_batches_and_the_virtual_kind_through_recv(datagram_socketcan) -> None:
+    socketcan, virtual = CanBusPort("socketcan", "can7"), CanBusPort("virtual", channel_name())
+    socket_bus, virtual_bus = socketcan.open(), virtual.open()
+    try:
+        assert isinstance(socketcan.frame_reader(socket_bus, 10), SocketFrameReader)
+        assert isinstance(virtual.frame_reader(virtual_bus, 10), BusFrameReader)
+    finally:
+        socket_bus.shutdown()
+        virtual_bus.shutdown()
+
+
+class CapacityRecordingPort(CanBusPort):
+    def __init__(self, channel: str) -> None:
+        super().__init__("virtual", channel)
+        self.capacities: list[int] = []
+
+    def frame_reader(self, bus: can.BusABC, capacity: int):
+        self.capacities.append(capacity)
+        return super().frame_reader(bus, capacity)
+
+
+def test_a_reader_holds_a_blocks_frames_up_to_1024_and_a_larger_block_is_gathered_in_several_batches() -> None:
+    small, large = CapacityRecordingPort(channel_name()), CapacityRecordingPort(channel_name())
+    with CanSource(small, PER_NODE, FS_HZ, max_block_s=0.1), CanSource(large, PER_NODE, FS_HZ, max_block_s=2.0) as source:
+        assert small.capacities == [50 * 4] and large.capacities == [1024]
+        sender = stamped_sender(large.channel)
+        try:
+            for message in layout_frames(PER_NODE, np.arange(600)):  # 2400 frames queued at once
+                sender.send(message)
+            block = source.read(0.5)
+        finally:
+            sender.shutdown()
+    (segment,) = check_blocks([block])
+    np.testing.assert_array_equal(segment, np.arange(600))  # one block, gathered 1024 frames at a time
+
+
+@pytest.mark.parametrize("name", ["hub", "per-node"])
+def test_a_socketcan_source_delivers_every_sample_of_its_socket(datagram_socketcan, name: str) -> None:
+    layout = LAYOUTS[name]
+    with CanSource(CanBusPort("socketcan", "can7"), layout, FS_HZ, max_block_s=0.2) as source:
+        assert source.connected, source.last_error
+        blocks = send_and_read(source, datagram_socketcan[-1], layout_frames(layout, np.arange(600)), 600)
+    (segment,) = check_blocks(blocks)
+    np.testing.assert_array_equal(segment, np.arange(600))
+    assert source.counters.frames == 600 * layout.frames_per_instant
+    assert source.counters.bad_frames == source.counters.extra["dropped_by_kernel"] == 0
+
+
+def test_frames_the_socket_had_no_room_for_are_counted_and_end_the_segment(datagram_socketcan) -> None:
+    with CanSource(CanBusPort("socketcan", "can7", receive_buffer_bytes=4096), HUB, FS_HZ, max_block_s=0.1) as source:
+        bus = datagram_socketcan[-1]
+        send_frames(bus.address, layout_frames(HUB, np.arange(100)))  # far more than 4 KiB of socket buffers
+        first = read_all(source, 1, timeout_s=1.0)
+        while (block := source.read(0.02)) is not None:
+            first.append(block)
+        received = source.counters.frames
+        assert 0 < received < 100
+        assert source.counters.extra["dropped_by_kernel"] == 100 - received
+        more = min(5, received)  # fewer than it held: none dropped
+        send_frames(bus.address, layout_frames(HUB, np.arange(100, 100 + more)))
+        second = read_all(source, more)
+    segments = check_blocks(first + second)
+    assert [(s[0], s[-1]) for s in segments] == [(0, received - 1), (100, 99 + more)]
+    assert source.counters.extra["lost_samples"] == 100 - received
+
+
+def test_a_socketcan_source_whose_socket_fails_reopens_the_bus_and_starts_a_segment(datagram_socketcan) -> None:
+    source = CanSource(CanBusPort("socketcan", "can7"), HUB, FS_HZ, max_block_s=0.1, backoff_min_s=0.01, backoff_max_s=0.02)
+    try:
+        first = send_and_read(source, datagram_socketcan[-1], layout_frames(HUB, np.arange(50)), 50)
+        datagram_socketcan[-1].socket.close()  # the interface went away under the source
+        assert source.read(0.02) is None
+        assert source.counters.extra["disconnects"] == 1
+        assert source.last_error.startswith("SocketCAN interface 'can7': lost: ")
+        deadline = time.monotonic() + 3.0
+        while not source.connected and time.monotonic() < deadline:
+            source.read(0.02)
+        assert source.connected and len(datagram_socketcan) == 2 and source.counters.reconnects == 1
+        second = send_and_read(source, datagram_socketcan[-1], layout_frames(HUB, np.arange(50, 80)), 30)
+    finally:
+        source.close()
+    assert [(s[0], s[-1]) for s in check_blocks(first + second)] == [(0, 49), (50, 79)]
+
+
 # ---- coalescing: the reader sleeps while a block fills instead of waking for every frame ------
 
 
@@ -471,8 +578,10 @@ def test_a_coalescing_read_still_returns_what_arrived_when_its_timeout_ends() ->
     assert bus.now_s <= 0.5 + 1e-9
 
 
-def test_the_default_coalescing_interval_is_the_time_of_25_frames_at_most_50_ms() -> None:
+def test_the_default_coalescing_interval_is_the_time_of_100_frames_at_most_50_ms() -> None:
     hub = CanSource(ScheduledPort(ScheduledBus([], 0.0)), HUB, FS_HZ)
     per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, FS_HZ)
-    assert hub.coalesce_s == pytest.approx(0.05)  # 25 frames at 500 frames/s
-    assert per_node.coalesce_s == pytest.approx(25 / (FS_HZ * PER_NODE.frames_per_instant))
+    fast_per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, 2 * FS_HZ)
+    assert hub.coalesce_s == pytest.approx(0.05)  # at most 50 ms (100 frames take 0.2 s)
+    assert per_node.coalesce_s == pytest.approx(0.05)  # 100 frames at 2000 frames/s
+    assert fast_per_node.coalesce_s == pytest.approx(100 / (2 * FS_HZ * PER_NODE.frames_per_instant))

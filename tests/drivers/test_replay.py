@@ -1,8 +1,12 @@
-"""Replay: CSV recordings and CAN logs (.log, .asc, .blf) as sources, paced or not, ending with EndOfStream;
-bad lines, identifiers and time stamps in a log counted and skipped."""
+"""Replay: recordings (CSV, Parquet) and CAN logs (.log, .asc, .blf) as sources, paced or not, ending with
+EndOfStream; recordings read as they are replayed; bad lines, identifiers and time stamps in a log counted
+and skipped."""
 
 from __future__ import annotations
 
+import csv
+import io
+import os
 import threading
 from pathlib import Path
 
@@ -10,9 +14,9 @@ import can
 import numpy as np
 import pytest
 
-from bogiemon.drivers.base import EndOfStream, Source
+from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.drivers.player import write_can_log
-from bogiemon.drivers.recording import RecordingError
+from bogiemon.drivers.recording import MAX_ACCEL_MPS2, RecordingError, read_recording, write_csv_recording, write_parquet_recording
 from bogiemon.drivers.replay import MAX_PACED_PAUSE_S, CanLogReplaySource, CsvReplaySource, open_replay
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, check_blocks, coded_accel, layout_frames, write_recording
 
@@ -274,3 +278,102 @@ def test_a_blf_object_declaring_zero_bytes_ends_the_replay_instead_of_spinning(t
     assert source.counters.extra["unreadable_entries"] == 1
     assert "BLFParseError: an object of a container declares 0 bytes" in source.last_error
     assert source.counters.frames == 149  # the frames before it
+
+
+# --- Recordings read as they are replayed (CSV and Parquet) ----------------------------------------
+
+
+def whole_file_blocks(path: Path, block_n: int) -> list[Block]:
+    """The blocks of a recording held whole in memory (the replay before it streamed), from the
+    csv module's reading of it: consecutive block_n samples, the rate of the whole file."""
+    rows = list(csv.reader(io.StringIO(path.read_text())))[1:]
+    data = np.array([[float(cell) for cell in row] for row in rows])
+    fs_hz = (data.shape[0] - 1) / (data[-1, 0] - data[0, 0])
+    return [
+        Block(float(data[i, 0]), fs_hz, data[i : i + block_n, 1:], gap_before=i == 0) for i in range(0, data.shape[0], block_n)
+    ]
+
+
+def assert_same_blocks(got: list[Block], expected: list[Block]) -> None:
+    assert len(got) == len(expected)
+    for g, e in zip(got, expected, strict=True):
+        assert (g.start_s, g.fs_hz, g.gap_before, g.status) == (e.start_s, e.fs_hz, e.gap_before, e.status)
+        np.testing.assert_array_equal(g.accel_mps2, e.accel_mps2)
+
+
+@pytest.mark.parametrize("block_s", [1.0, 0.37, 7.0])
+def test_a_recording_read_as_it_is_replayed_gives_the_blocks_of_the_whole_file(tmp_path: Path, block_s: float) -> None:
+    write_recording(tmp_path / "run.csv", 130_000, start_s=1.7e9)  # several megabytes of text: many chunks
+    source = open_replay(tmp_path / "run.csv", rate=0, layout=None, fs_hz=FS_HZ, max_block_s=block_s)
+    assert_same_blocks(drain(source), whole_file_blocks(tmp_path / "run.csv", round(block_s * FS_HZ)))
+    assert source.counters.frames == 130_000
+
+
+def test_a_paced_replay_of_a_long_recording_delivers_every_block_once_its_time_has_come(tmp_path: Path) -> None:
+    write_recording(tmp_path / "run.csv", 60_000)
+    clock = FakeClock()
+    source = CsvReplaySource(tmp_path / "run.csv", rate=50.0, max_block_s=1.0, clock=clock, sleep=clock.sleep)
+    blocks = []
+    with pytest.raises(EndOfStream):
+        while True:
+            block = source.read(1.0)
+            if block is not None:
+                assert clock.now_s >= (block.end_s - 1 / FS_HZ - 100.0) / 50.0 - 1e-9  # its last sample is due
+                blocks.append(block)
+    assert_same_blocks(blocks, whole_file_blocks(tmp_path / "run.csv", 500))
+    assert clock.now_s == pytest.approx(59_999 / FS_HZ / 50.0)
+
+
+def test_a_bad_row_found_late_ends_the_replay_after_every_sample_before_it(tmp_path: Path) -> None:
+    accel = write_recording(tmp_path / "run.csv", 100_000)
+    lines = (tmp_path / "run.csv").read_text().splitlines()
+    lines[1 + 70_123] = lines[1 + 70_123].replace(",", ",?", 1)  # 140 s in, megabytes after the open
+    (tmp_path / "run.csv").write_text("\n".join(lines) + "\n")
+    source = open_replay(tmp_path / "run.csv", rate=0, layout=None, fs_hz=FS_HZ)
+    assert source.fs_hz == 99_999 / (float(lines[-1].split(",")[0]) - 100.0)  # the rate is known at the open
+    blocks = []
+    with pytest.raises(RecordingError, match=r"run.csv: line 70125: a1 is not a number: '\?"):
+        for _ in range(1000):
+            block = source.read(1.0)
+            if block is not None:
+                blocks.append(block)
+    got = np.concatenate([b.accel_mps2 for b in blocks])
+    np.testing.assert_array_equal(got, accel[:70_123])  # all of them, the last block a short one
+    assert [b.n_samples for b in blocks][-2:] == [500, 123]
+
+
+def test_a_parquet_recording_replays_in_the_blocks_of_the_same_csv(tmp_path: Path) -> None:
+    write_recording(tmp_path / "run.csv", 80_000, start_s=1.7e9)
+    rec = read_recording(tmp_path / "run.csv")
+    write_parquet_recording(tmp_path / "run.parquet", rec.time_s, rec.accel_mps2)
+    blocks = {name: drain(open_replay(tmp_path / name, rate=0, layout=None, fs_hz=FS_HZ)) for name in ("run.csv", "run.parquet")}
+    assert_same_blocks(blocks["run.parquet"], blocks["run.csv"])
+
+
+def test_clipped_samples_are_counted_by_the_replay_source(tmp_path: Path) -> None:
+    t = np.arange(1000) / FS_HZ
+    accel = np.full((1000, 3), 9.81)
+    accel[400:410, 1] = 1e308
+    write_csv_recording(tmp_path / "burst.csv", t, accel)
+    source = open_replay(tmp_path / "burst.csv", rate=0, layout=None, fs_hz=FS_HZ)
+    got = np.concatenate([b.accel_mps2 for b in drain(source)])
+    assert source.counters.extra["clipped_samples"] == 10
+    assert np.all(got[400:410, 1] == MAX_ACCEL_MPS2) and np.isfinite(got).all()
+
+
+def test_a_log_line_of_megabytes_is_counted_and_skipped_unread_and_the_rest_replays(tmp_path: Path) -> None:
+    path = tmp_path / "long.log"
+    lines = log_lines(path, HUB, 200)
+    lines.insert(100, "(1000.1) vcan0 100#" + "0" * (8 << 20))  # 8 MiB on one line, in the middle
+    path.write_text("\n".join(lines) + "\n")
+    source = CanLogReplaySource(path, HUB, FS_HZ, rate=0)
+    assert sum(b.n_samples for b in drain(source)) == 200
+    assert source.counters.extra["unreadable_entries"] == 1
+    assert "long.log: line 101: longer than 64 KiB" in source.last_error
+
+
+def test_a_fifo_named_as_a_recording_is_refused_without_blocking(tmp_path: Path) -> None:
+    for name in ("pipe.csv", "pipe.log"):
+        os.mkfifo(tmp_path / name)  # nobody writes to it: an open for reading would block
+        with pytest.raises(RecordingError, match=rf"{name}: not a regular file; a (recording|CAN log) is"):
+            open_replay(tmp_path / name, rate=0, layout=HUB, fs_hz=FS_HZ)

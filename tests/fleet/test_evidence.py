@@ -8,6 +8,7 @@ import numpy as np
 import pyarrow as pa
 
 from bogiemon.daemon.config import load_config
+from bogiemon.daemon.vocabulary import Mode
 from bogiemon.fleet.evidence import MIN_SPREAD, STANDS_OUT, fleet_relative, robust_distance
 from bogiemon.fleet.judge import SERIES_SCHEMA, WagonJudged
 from bogiemon.fleet.layout import Fleet, Wagon
@@ -24,8 +25,24 @@ def test_robust_distance_is_the_rms_of_robust_z_scores() -> None:
 
 def _judged(wagon_id: str, vector: np.ndarray) -> WagonJudged:
     ev = {"full": {"first_day": list(vector), "last_day": list(vector), "first_day_windows": 100, "last_day_windows": 100}}
-    return WagonJudged(wagon_id, (), pa.Table.from_pylist([], schema=SERIES_SCHEMA), "NORMAL", {}, 100, 100, 0, 0, 0.1, 10.0,
-                       ("2026-11-02",), ev, ())  # fmt: skip
+    return WagonJudged(
+        wagon_id=wagon_id,
+        events=(),
+        series=pa.Table.from_pylist([], schema=SERIES_SCHEMA),
+        mode=Mode.NORMAL,
+        sensor_reported={},
+        not_judged=False,
+        unjudged_running_s=0.0,
+        windows=100,
+        judged=100,
+        gated=0,
+        sensor_fault_windows=0,
+        trend=0.1,
+        trend_alarm=10.0,
+        days=("2026-11-02",),
+        evidence=ev,
+        issues=(),
+    )
 
 
 def _wagon(tmp_path: Path, wagon_id: str, wagon_type: str = "Sgns") -> Wagon:

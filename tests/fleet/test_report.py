@@ -137,7 +137,7 @@ def test_summary_states_the_file_it_wrote(judged: Path, tmp_path: Path) -> None:
     out = tmp_path / "r.html"
     summary = write_report(judged, out, title="Fleet page")
     assert summary.path == out and summary.bytes == out.stat().st_size and summary.wagons == len(DEFAULT_FLEET)
-    assert dict(summary.states) == {"CONFIRMED": 1, "SUSPECTED": 1, "SENSOR_FAULT": 1, "NORMAL": 2, "NO_DATA": 1}
+    assert dict(summary.states) == {"CONFIRMED": 1, "SUSPECTED": 1, "SENSOR_FAULT": 1, "NOT_JUDGED": 0, "NORMAL": 2, "NO_DATA": 1}
     assert summary.events == len(_events(judged)) and summary.skipped_inputs == 1
     assert "<title>Fleet page</title>" in out.read_text()
 

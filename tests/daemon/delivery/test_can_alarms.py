@@ -12,7 +12,16 @@ import pytest
 import structlog.testing
 from can.interfaces.virtual import VirtualBus
 
-from bogiemon.daemon.delivery.can_alarms import CanAlarmSink, Heartbeat, alarm_payload, heartbeat_payload, load_alarm_codecs, worst_indicator
+from bogiemon.daemon.delivery.can_alarms import (
+    CanAlarmSink,
+    Heartbeat,
+    alarm_payload,
+    coverage_payload,
+    diagnosis_payload,
+    heartbeat_payload,
+    load_alarm_codecs,
+    worst_indicator,
+)
 from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.drivers.candb import DbcError, load_layout, shipped_dbc_text
 from bogiemon.drivers.player import PlayError, open_player_bus
@@ -31,12 +40,14 @@ def alarm_event(kind: EventKind, i4_norm: float = 0.2, i2_norm: float = 0.031) -
                  indicators={"i2_norm": i2_norm, "i4_norm": i4_norm}, details={"load": "full", "thresholds": THRESHOLDS})  # fmt: skip
 
 
-def receive(bus: can.BusABC, frame_id: int, n: int, timeout_s: float = 10.0) -> list[can.Message]:
+def receive(bus: can.BusABC, frame_id: int | tuple[int, ...], n: int, timeout_s: float = 10.0) -> list[can.Message]:
+    """The next n frames of these identifiers (others are passed over), in the order they came."""
+    wanted = frame_id if isinstance(frame_id, tuple) else (frame_id,)
     got: list[can.Message] = []
     end_s = time.monotonic() + timeout_s
     while len(got) < n and time.monotonic() < end_s:
         message = bus.recv(0.1)
-        if message is not None and message.arbitration_id == frame_id:
+        if message is not None and message.arbitration_id in wanted:
             got.append(message)
     return got
 
@@ -87,8 +98,11 @@ def test_confirmed_and_cleared_go_on_the_bus_and_nothing_else_does() -> None:
         events = [alarm_event(k) for k in (EventKind.SUSPECTED, EventKind.CONFIRMED, EventKind.SENSOR_FAULT, EventKind.CLEARED, EventKind.SENSOR_CLEARED)]
         for event in events:
             sink.publish(event)
-        frames = receive(receiver, 0x300, 2)
-        assert receive(receiver, 0x300, 1, timeout_s=0.3) == []  # exactly two
+        frames = receive(receiver, (0x300, 0x302), 3)
+        assert receive(receiver, (0x300, 0x302), 1, timeout_s=0.3) == []  # exactly these
+        (diagnosis,) = [f for f in frames if f.arbitration_id == 0x302]  # the CONFIRMED's diagnosis, after it
+        assert [f.arbitration_id for f in frames] == [0x300, 0x302, 0x300]
+        frames = [f for f in frames if f.arbitration_id == 0x300]
     finally:
         sink.close()
         receiver.shutdown()
@@ -96,6 +110,7 @@ def test_confirmed_and_cleared_go_on_the_bus_and_nothing_else_does() -> None:
     assert [(str(d["Kind"]), d["Counter"], str(d["Severity"])) for d in decoded] == [("CONFIRMED", 1, "alarm"), ("CLEARED", 2, "info")]
     assert [d["EventRef"] for d in decoded] == [int(events[1].event_id[:6], 16), int(events[3].event_id[:6], 16)]
     assert all(not f.is_extended_id and f.dlc == 8 for f in frames)
+    assert DB.decode_message(0x302, diagnosis.data)["Counter"] == 1  # the alarm frame it belongs to
 
 
 def test_the_heartbeat_repeats_the_state_and_the_last_alarm_counter() -> None:
@@ -144,3 +159,43 @@ def test_a_bus_that_is_not_there_yet_is_retried_quietly_and_the_alarm_waits_for_
             receiver.shutdown()
     assert len(frames) == 1 and len(attempts) == 4
     assert [entry["event"] for entry in logs] == ["CAN alarm bus unusable, retrying", "CAN alarm bus open again"]
+
+
+def test_a_confirmed_diagnosis_names_its_diagonal_pair_a_bit_each_and_never_a_certainty() -> None:
+    codecs = load_alarm_codecs()
+    event = alarm_event(EventKind.CONFIRMED)
+    event.details["diagnosis"] = {"corner": "leading-left or trailing-right", "corners": ["leading-left", "trailing-right"],
+                                  "corner_confidence": 0.999}  # fmt: skip
+    event.details["trigger"] = "trend"
+    decoded = DB.decode_message(0x302, diagnosis_payload(codecs, event, alarm_counter=5))
+    assert decoded["Counter"] == 5 and decoded["Corners"] == 1 | 8 and str(decoded["Trigger"]) == "trend"
+    assert decoded["Confidence"] == 99 and decoded["EventRef"] == int(event.event_id[:6], 16)
+    unknown = alarm_event(EventKind.CONFIRMED)
+    unknown.details["diagnosis"] = {"corner": "unknown", "corners": [], "corner_confidence": 0.6}
+    assert DB.decode_message(0x302, diagnosis_payload(codecs, unknown, alarm_counter=6))["Corners"] == 0
+
+
+def test_not_judged_and_judged_again_go_on_the_bus_as_alarm_frames() -> None:
+    codecs = load_alarm_codecs()
+    for kind, code in ((EventKind.NOT_JUDGED, "NOT_JUDGED"), (EventKind.JUDGED_AGAIN, "JUDGED_AGAIN")):
+        event = Event(time_s=1.7e9, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="c0ffee", details={"message": "x"})
+        decoded = DB.decode_message(0x300, alarm_payload(codecs, event, counter=1))
+        assert str(decoded["Kind"]) == code and str(decoded["Indicator"]) == "none" and decoded["Fired"] == 0
+
+
+def test_the_coverage_goes_with_every_heartbeat() -> None:
+    codecs = load_alarm_codecs()
+    beat = Heartbeat(mode="normal", has_window=True, sensors_ok=True, judged=False, gate=None, mqtt_link="up", windows=10, events=1,
+                     outbox_pending=0, judged_windows=70_001, not_judged=True, unjudged_running_s=7_259.0)  # fmt: skip
+    decoded = DB.decode_message(0x303, coverage_payload(codecs, beat, counter=9))
+    assert decoded == {"Counter": 9, "NotJudged": 1, "UnjudgedRunning": 120, "JudgedWindows": 70_001 % 65536}
+    name = channel()
+    receiver = VirtualBus(channel=name, receive_own_messages=False)
+    sink = CanAlarmSink(codecs, "virtual", name, heartbeat_period_s=0.02, heartbeat_source=lambda: beat)
+    sink.start()
+    try:
+        coverage = [DB.decode_message(0x303, f.data) for f in receive(receiver, 0x303, 2)]
+    finally:
+        sink.close()
+        receiver.shutdown()
+    assert [c["Counter"] for c in coverage] == [1, 2] and all(c["NotJudged"] == 1 for c in coverage)
