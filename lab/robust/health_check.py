@@ -23,7 +23,7 @@ SENSOR_VARIANTS), commissioned as `bogiemon calibrate` does (daemon/calibrate.py
 on each load's commissioning runs, drawn as the README asks), then each of its healthy runs judged
 by the daemon's WindowJudge as it is, with the hiss after the sensor on each channel in turn, and
 re-simulated with the hiss inside one channel's sensor (its element, before its filters; the
-channel turns from run to run), and a run per load with one or two stops. Printed per model, part,
+channel turns from run to run), and per load a run with one or two stops and one standing. Printed per model, part,
 load and where the noise enters: the runs with NOISY on the noisy channel, with a problem on
 another channel, the share of their windows named, suspension events, and per run the margin up to
 which the noise floor alone names it (daemon/noise_floor.py floor_excess); the healthy runs (and
@@ -202,7 +202,13 @@ class WagonNoiseRuns:
     commissioning: dict[str, list[tuple[WindowIndicators, ...]]]  # per load, its runs
     healthy: list[tuple[str, tuple[WindowIndicators, ...]]]  # (load, windows)
     noisy: list[NoisyRun]
-    stops: list[tuple[str, tuple[WindowIndicators, ...]]] = field(default_factory=list)  # healthy runs with stops
+    # Healthy runs that are not steady running, per load: (load, STILL_ROLES role, windows).
+    still: list[tuple[str, str, tuple[WindowIndicators, ...]]] = field(default_factory=list)
+
+
+# The evaluation plan's roles of healthy runs that stand: braking to a stand once or twice and
+# starting again, and a wagon that stands the whole run (a sensor fault must never come of either).
+STILL_ROLES = ("stops", "standing")
 
 
 def trial_fleet(model: str, fleet: str, n_wagons: int) -> tuple[Wagon, ...]:
@@ -211,20 +217,23 @@ def trial_fleet(model: str, fleet: str, n_wagons: int) -> tuple[Wagon, ...]:
     return plan.training_fleet() if fleet == "training" else plan.fleet()
 
 
-def trial_specs(fleet: str, wagon: int, load: str, n_commissioning: int, n_runs: int) -> tuple[list[RunSpec], list[RunSpec]]:
+def trial_specs(fleet: str, wagon: int, load: str, n_commissioning: int, n_runs: int, drawn: bool) -> tuple[list[RunSpec], list[RunSpec]]:
     """The wagon's commissioning and healthy test runs of one load, specs of the evaluation plan's
-    roles (an evaluation wagon's calibration and healthy runs; a training wagon's first runs, drawn
-    as commissioning, and those after them)."""
+    roles (an evaluation wagon's calibration and healthy runs; a training wagon's first runs, as
+    commissioning, and those after them). The commissioning runs follow the README's instruction
+    (every track, both ends of the speeds), or with `drawn` are what the wagon happened to run, their
+    conditions drawn like any run's (draw_conditions)."""
     if fleet == "training":
-        runs = [RunSpec("train-healthy", wagon, load, HEALTHY, 1.0, None, r, NOISE_RUN_S, commissioning=r < n_commissioning)
+        runs = [RunSpec("train-healthy", wagon, load, HEALTHY, 1.0, None, r, NOISE_RUN_S, commissioning=r < n_commissioning and not drawn)
                 for r in range(n_commissioning + n_runs)]  # fmt: skip
         return runs[:n_commissioning], runs[n_commissioning:]
-    commissioning = [RunSpec("calibration", wagon, load, HEALTHY, 1.0, None, r, NOISE_RUN_S, commissioning=True) for r in range(n_commissioning)]
+    commissioning = [RunSpec("calibration", wagon, load, HEALTHY, 1.0, None, r, NOISE_RUN_S, commissioning=not drawn) for r in range(n_commissioning)]
     return commissioning, [RunSpec("healthy", wagon, load, HEALTHY, 1.0, None, r, NOISE_RUN_S) for r in range(n_runs)]
 
 
 def noise_trial_wagon(
-    model: str, variant: str, fleet: str, wagon_index: int, n_wagons: int, n_commissioning: int, n_runs: int, settings: MonitorSettings
+    model: str, variant: str, fleet: str, wagon_index: int, n_wagons: int, n_commissioning: int, n_runs: int, settings: MonitorSettings,
+    drawn: bool,
 ) -> WagonNoiseRuns:
     """Simulate one wagon's runs of the trial (one batch, every core) and compute their windows."""
     from bogiemon.simulator.run import simulate_batch  # the numba kernel: only when running
@@ -233,84 +242,47 @@ def noise_trial_wagon(
     geometry = settings.geometry
     jobs: list[tuple[str, str, RunSpec, int]] = []  # (kind, load, spec, channel of the hiss inside)
     for li, load in enumerate(("full", "tare")):
-        commissioning, healthy = trial_specs(fleet, wagon_index, load, n_commissioning, n_runs)
+        commissioning, healthy = trial_specs(fleet, wagon_index, load, n_commissioning, n_runs, drawn)
         jobs += [("commissioning", load, spec, -1) for spec in commissioning]
         for n, spec in enumerate(healthy):
             jobs += [("healthy", load, spec, -1), ("inside", load, spec, (wagon_index + li + n) % 3)]
+        jobs += [(role, load, RunSpec(role, wagon_index, load, HEALTHY, 1.0, None, 0, NOISE_RUN_S), -1) for role in STILL_ROLES]
     scenarios = []
     for kind, _, spec, channel in jobs:
         scenario = with_sensor_variant(scenario_for(spec, wagon, FS_HZ, geometry), variant)
         scenarios.append(hiss_inside(scenario, channel) if kind == "inside" else scenario)
     out = WagonNoiseRuns({"full": [], "tare": []}, [], [])
     for (kind, load, spec, channel), result in zip(jobs, simulate_batch(scenarios), strict=True):
+        windows = tuple(core_windows(result.accel_mps2, settings))
         if kind == "commissioning":
-            out.commissioning[load].append(tuple(core_windows(result.accel_mps2, settings)))
+            out.commissioning[load].append(windows)
         elif kind == "inside":
-            out.noisy.append(NoisyRun(load, "inside", channel, tuple(core_windows(result.accel_mps2, settings))))
+            out.noisy.append(NoisyRun(load, "inside", channel, windows))
+        elif kind in STILL_ROLES:
+            out.still.append((load, kind, windows))
         else:
-            out.healthy.append((load, tuple(core_windows(result.accel_mps2, settings))))
+            out.healthy.append((load, windows))
             for c in range(3):
                 hissed = damage_sensors(result.accel_mps2, f"hiss a{c + 1}", FS_HZ, spec.seed)
                 out.noisy.append(NoisyRun(load, "after", c, tuple(core_windows(hissed, settings))))
     return out
 
 
-def drawn_commissioning(
-    model: str, variant: str, fleet: str, wagon_index: int, n_wagons: int, n_commissioning: int, settings: MonitorSettings
-) -> dict[str, list[tuple[WindowIndicators, ...]]]:
-    """The wagon's commissioning runs per load as a keeper records them: what it happened to run
-    (conditions drawn like any run's, not every track and both ends of the speeds)."""
-    from bogiemon.simulator.run import simulate_batch  # the numba kernel: only when running
-
-    wagon = trial_fleet(model, fleet, n_wagons)[wagon_index]
-    role = "train-calibration" if fleet == "training" else "calibration"  # other runs than the other fleet's
-    specs = [(load, RunSpec(role, wagon_index, load, HEALTHY, 1.0, None, r, NOISE_RUN_S)) for load in ("full", "tare") for r in range(n_commissioning)]
-    scenarios = [with_sensor_variant(scenario_for(spec, wagon, FS_HZ, settings.geometry), variant) for _, spec in specs]
-    out: dict[str, list[tuple[WindowIndicators, ...]]] = {"full": [], "tare": []}
-    for (load, _), result in zip(specs, simulate_batch(scenarios), strict=True):
-        out[load].append(tuple(core_windows(result.accel_mps2, settings)))
-    return out
-
-
-def stops_runs(
-    model: str, variant: str, fleet: str, wagon_index: int, n_wagons: int, settings: MonitorSettings
-) -> list[tuple[str, tuple[WindowIndicators, ...]]]:
-    """One healthy run per load that brakes to a stand once or twice and starts again (the
-    evaluation's "stops" role): (load, windows)."""
-    from bogiemon.simulator.run import simulate_batch  # the numba kernel: only when running
-
-    wagon = trial_fleet(model, fleet, n_wagons)[wagon_index]
-    specs = [RunSpec("stops", wagon_index, load, HEALTHY, 1.0, None, 0, NOISE_RUN_S) for load in ("full", "tare")]
-    scenarios = [with_sensor_variant(scenario_for(spec, wagon, FS_HZ, settings.geometry), variant) for spec in specs]
-    return [(spec.load, tuple(core_windows(result.accel_mps2, settings))) for spec, result in zip(specs, simulate_batch(scenarios), strict=True)]
-
-
 def trial_runs(
     model: str, variant: str, fleet: str, n_wagons: int, n_commissioning: int, n_runs: int, settings: MonitorSettings, data: Path | None,
     drawn: bool = False,
 ) -> list[WagonNoiseRuns]:
-    """Every wagon's runs, from the data file where it holds them (written back with the new ones);
-    drawn: the wagon commissioned on drawn runs instead (drawn_commissioning)."""
-    cache: dict[tuple[Any, ...], Any] = {}
+    """Every wagon's runs, from the data file where it holds them (written back with the new ones)."""
+    cache: dict[tuple[Any, ...], WagonNoiseRuns] = {}
     if data is not None and data.exists():
         with data.open("rb") as f:
             cache = pickle.load(f)  # noqa: S301 - the user's own cache, named on the command line
     out, added = [], False
     for w in range(n_wagons):
-        key = (model, variant, fleet, w, n_commissioning, n_runs, settings.processing)
+        key = (model, variant, fleet, w, n_commissioning, n_runs, drawn, settings.processing)
         if key not in cache:
-            cache[key], added = noise_trial_wagon(model, variant, fleet, w, n_wagons, n_commissioning, n_runs, settings), True
-        runs = cache[key]
-        stops_key = (model, variant, fleet, w, "stops", settings.processing)
-        if stops_key not in cache:
-            cache[stops_key], added = stops_runs(model, variant, fleet, w, n_wagons, settings), True
-        runs = replace(runs, stops=cache[stops_key])
-        if drawn:
-            drawn_key = (model, variant, fleet, w, n_commissioning, "drawn", settings.processing)
-            if drawn_key not in cache:
-                cache[drawn_key], added = drawn_commissioning(model, variant, fleet, w, n_wagons, n_commissioning, settings), True
-            runs = replace(runs, commissioning=cache[drawn_key])
-        out.append(runs)
+            cache[key], added = noise_trial_wagon(model, variant, fleet, w, n_wagons, n_commissioning, n_runs, settings, drawn), True
+        out.append(cache[key])
     if data is not None and added:
         write_bytes_atomically(data, pickle.dumps(cache, protocol=pickle.HIGHEST_PROTOCOL))
     return out
@@ -372,18 +344,17 @@ def noise_floor_trial(model: str, variant: str, wagons: Sequence[WagonNoiseRuns]
             problems = judge_trial_run(windows, settings, None, cells.setdefault((load, "healthy"), NoiseCell()))
             if problems:
                 false.append(f"wagon {w} {load}: {problems}")
-        for load, windows in runs.stops:
-            problems = judge_trial_run(windows, settings, None, cells.setdefault((load, "stops"), NoiseCell()))
+        for load, role, windows in runs.still:
+            problems = judge_trial_run(windows, settings, None, cells.setdefault((load, role), NoiseCell()))
             if problems:
-                false.append(f"wagon {w} {load} with stops: {problems}")
+                false.append(f"wagon {w} {load} {role}: {problems}")
         for run in runs.noisy:
             judge_trial_run(run.windows, settings, run.channel, cells.setdefault((run.load, run.where), NoiseCell()))
     lines = [f"model {model.upper()}, sensor {variant}: {len(wagons)} wagons"]
     for (load, where), c in sorted(cells.items()):
         excess = np.array(c.excess)
-        if where in ("healthy", "stops"):
-            what = "healthy" if where == "healthy" else "stops  "
-            lines.append(f"  {load:4} {what}    : runs {c.runs:3}, a sensor fault (false) {c.elsewhere}, suspension {c.suspension}; "
+        if where == "healthy" or where in STILL_ROLES:
+            lines.append(f"  {load:4} {where:11}: runs {c.runs:3}, a sensor fault (false) {c.elsewhere}, suspension {c.suspension}; "
                          f"largest floor excess {excess.max():.2f}")  # fmt: skip
             continue
         lines.append(
