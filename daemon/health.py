@@ -123,7 +123,8 @@ class HealthSettings:
     # channels' (their geometric mean); empty on a wagon not commissioned: not in force.
     noise_floor_psd: tuple[float, ...] = ()
     noise_floor_ratio: tuple[float, ...] = ()
-    noise_floor_margin: float = 4.0  # a floor this many times both of those is a noisy sensor
+    # A floor this many times both of those is a noisy sensor (a prior: daemon/noise_floor.py).
+    noise_floor_margin: float = 1.8
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.layout_checks) - set(LAYOUT_CHECKS))
