@@ -244,7 +244,7 @@ def assess_window(
     # corner alike (it follows the carbody), long before it shows in the channel's RMS. Only while
     # the wagon runs steadily: braking to a stop and starting again pitch the frame at 0.5-1 Hz, and
     # a healthy channel there rose 3.35 times the median (model B, a training wagon's stop).
-    steady = gate is None and window.spectra is not None and settings.structure_checks
+    steady = gate is None and settings.structure_checks
     low_power = np.array(window.spectra.power[0]) if steady and window.spectra is not None else None
     low_median = float(np.median(low_power)) if low_power is not None else 0.0
     for c, name in enumerate(CHANNELS):
