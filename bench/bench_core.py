@@ -4,10 +4,12 @@ Figures in x real time (median of several runs, with min and max): the streaming
 and 1 kHz in 1 s blocks, as a live source delivers them, against the naive baseline timed in
 turn with it in the same run (bench/baseline.py: scipy.signal.correlate over every whole window at every hop),
 and `bogiemon analyze` on a one-hour 500 Hz recording as a whole process (start-up, reading and
-parsing included), as CSV and as Parquet (the same samples), timed in turn run by run, against
-the issue's target. The core also computes what the baseline does not (channel statistics, band
-spectra): the ratio is a lower bound of the correlation's own speed-up.
-Run with `make bench-core` or `.venv/bin/python bench/bench_core.py [--minutes M] [--runs R]`.
+parsing included), as CSV, as .csv.gz and as Parquet (the same samples), timed in turn run by run,
+against plain CSV and the issue's target; `--vs-python` times another tree's `analyze` (main's
+interpreter: before and after) in the same rounds. The core also computes what the baseline does
+not (channel statistics, band spectra): the ratio is a lower bound of the correlation's own speed-up.
+Run with `make bench-core` or
+`.venv/bin/python bench/bench_core.py [--minutes M] [--runs R] [--analyze-only] [--vs-python PYTHON]`.
 """
 
 from __future__ import annotations
@@ -70,32 +72,48 @@ def core_figures(minutes: float, runs: int, fs_hz: float) -> list[Figure]:
     return [core, naive]
 
 
-def analyze_figures(runs: int) -> list[Figure]:
-    """`bogiemon analyze` on one hour at 500 Hz, the whole process, x real time: the recording as CSV
-    and the same samples (those the CSV holds) as Parquet, timed in turn; Parquet against CSV."""
+def analyze_figures(runs: int, vs_python: str | None = None) -> list[Figure]:
+    """`bogiemon analyze` on one hour at 500 Hz, the whole process, x real time: the recording as
+    plain CSV (the baseline: the issue's figure), as .csv.gz (what the recorder writes) and the
+    same samples (those the CSV holds) as Parquet, timed in turn run by run. With vs_python (another
+    tree's interpreter, e.g. main's .venv/bin/python), that tree's `analyze` of each file is timed
+    in the same rounds, and each figure is compared with its own."""
     fs_hz, data_s = 500.0, 3600.0
+    # The figures' names as the README's table has them.
+    formats = (("csv", "one-hour 500 Hz CSV"), ("csv.gz", "the same hour as .csv.gz"), ("parquet", "the same hour as Parquet"))
     with tempfile.TemporaryDirectory() as tmp:
-        csv_path, parquet_path = Path(tmp) / "one_hour.csv", Path(tmp) / "one_hour.parquet"
+        paths = {suffix: Path(tmp) / f"one_hour.{suffix}" for suffix, _ in formats}
         accel = synthetic_accel(data_s, fs_hz, seed=1)
-        write_csv_recording(csv_path, np.arange(accel.shape[0]) / fs_hz, accel)
-        samples = read_recording(csv_path)
-        write_parquet_recording(parquet_path, samples.time_s, samples.accel_mps2)
-        commands = [[sys.executable, "-m", "bogiemon.daemon.cli.main", "analyze", str(path)] for path in (csv_path, parquet_path)]
-        csv_s, parquet_s = time_interleaved(
-            [lambda command=command: subprocess.run(command, check=True, stdout=subprocess.DEVNULL) for command in commands], runs
+        write_csv_recording(paths["csv"], np.arange(accel.shape[0]) / fs_hz, accel)
+        samples = read_recording(paths["csv"])
+        write_csv_recording(paths["csv.gz"], samples.time_s, samples.accel_mps2)
+        write_parquet_recording(paths["parquet"], samples.time_s, samples.accel_mps2)
+        pythons = [sys.executable] + ([vs_python] if vs_python else [])
+        commands = [[python, "-m", "bogiemon.daemon.cli.main", "analyze", str(paths[suffix])] for suffix, _ in formats for python in pythons]
+        # From a folder without a bogiemon/ in it: each interpreter imports its own tree.
+        seconds = time_interleaved(
+            [lambda command=command: subprocess.run(command, check=True, stdout=subprocess.DEVNULL, cwd=tmp) for command in commands], runs
         )
-    csv_figure = Figure.of("analyze_1h_x_realtime", "`bogiemon analyze`, one-hour 500 Hz CSV, whole process", "x real time",
-                           [data_s / s for s in csv_s], COMMAND, target=ANALYZE_TARGET_X_REALTIME)  # fmt: skip
-    parquet_figure = Figure.of("analyze_1h_parquet_x_realtime", "`bogiemon analyze`, the same hour as Parquet, whole process", "x real time",
-                               [data_s / s for s in parquet_s], COMMAND, target=ANALYZE_TARGET_X_REALTIME)  # fmt: skip
-    return [csv_figure, parquet_figure.compare(csv_figure)]
+    out: list[Figure] = []
+    for k, (suffix, name) in enumerate(formats):
+        key = "analyze_1h" if suffix == "csv" else f"analyze_1h_{suffix.replace('.', '_')}"
+        ours = Figure.of(f"{key}_x_realtime", f"`bogiemon analyze`, {name}, whole process", "x real time",
+                         [data_s / s for s in seconds[k * len(pythons)]], COMMAND, target=ANALYZE_TARGET_X_REALTIME)  # fmt: skip
+        if vs_python:
+            theirs = Figure.of(f"{key}_vs_x_realtime", f"  the same with {vs_python}", "x real time",
+                               [data_s / s for s in seconds[k * len(pythons) + 1]], COMMAND)  # fmt: skip
+            out += [ours.compare(theirs), theirs]
+        else:
+            out.append(ours if suffix == "csv" else ours.compare(out[0]))
+    return out
 
 
-def figures(minutes: float = 10.0, runs: int = 7) -> list[Figure]:
+def figures(minutes: float = 10.0, runs: int = 7, vs_python: str | None = None, only_analyze: bool = False) -> list[Figure]:
     out = []
-    for fs_hz in (500.0, 1000.0):
-        out += core_figures(minutes, runs, fs_hz)
-    out += analyze_figures(max(3, runs // 2))
+    if not only_analyze:
+        for fs_hz in (500.0, 1000.0):
+            out += core_figures(minutes, runs, fs_hz)
+    out += analyze_figures(max(3, runs // 2), vs_python)
     return out
 
 
@@ -103,8 +121,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="minutes of data for the core (default 10)")
     parser.add_argument("--runs", type=int, default=7, help="timed runs per figure (default 7)")
+    parser.add_argument("--analyze-only", action="store_true", help="only `bogiemon analyze` of the one-hour files")
+    parser.add_argument("--vs-python", metavar="PYTHON", help="also time another tree's analyze in the same rounds (e.g. ../main/.venv/bin/python)")
     args = parser.parse_args()
-    print(table(figures(args.minutes, args.runs)))
+    print(table(figures(args.minutes, args.runs, args.vs_python, args.analyze_only)))
 
 
 if __name__ == "__main__":

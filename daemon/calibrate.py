@@ -322,7 +322,8 @@ def fragment(result: CalibrationResult) -> str:
     load_states = {
         c.load: {"center": [float(v) for v in c.signature.center], "scale": [float(v) for v in c.signature.scale],
                  "limit": c.signature.limit, "windows": c.n_judged,
-                 "lowest_excitation_mps2": math.floor(c.signature.lowest_excitation_mps2 * 1e4) / 1e4}  # fmt: skip
+                 "lowest_excitation_mps2": math.floor(c.signature.lowest_excitation_mps2 * 1e4) / 1e4,
+                 "highest_excitation_mps2": math.ceil(c.signature.highest_excitation_mps2 * 1e4) / 1e4}  # fmt: skip
         for c in result.loads
         if c.signature is not None
     }

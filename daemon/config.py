@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import math
 import tomllib
 from collections.abc import Callable, Sequence
 from importlib import resources
@@ -44,7 +45,6 @@ from bogiemon.daemon.config_sections import (  # the sections, importable from h
 )
 from bogiemon.daemon.decision import DecisionSettings, Threshold
 from bogiemon.daemon.health import HealthSettings
-from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.models import Baseline, Levels, LoadDiscriminant, LoadModel, LoadSignature, shipped_models
 from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Method
 from bogiemon.detection import BogieGeometry, ProcessingSettings
@@ -154,13 +154,16 @@ class BogiemonConfig(Section):
 
     def credential_warnings(self) -> list[str]:
         """One line per [mqtt] credential or key file that others can read, and for a password in clear."""
-        from bogiemon.daemon.delivery.connection import readable_by_others  # only with [mqtt] files
-
         m = self.mqtt
         warnings = []
         for field in ("tls_key_file", "username_file", "password_file"):
             path = getattr(m, field)
-            problem = readable_by_others(path) if path else None
+            if not path:
+                continue
+            # Only with [mqtt] files: the delivery package imports the monitor and the daemon's log.
+            from bogiemon.daemon.delivery.connection import readable_by_others
+
+            problem = readable_by_others(path)
             if problem is not None:
                 warnings.append(f"mqtt.{field}: {problem}")
         if m.password_file and not m.tls:
@@ -211,7 +214,8 @@ class BogiemonConfig(Section):
         """The load states this wagon was commissioned in (empty: the shipped load model decides)."""
         return tuple(
             LoadSignature(
-                load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit, st.lowest_excitation_mps2
+                load, np.asarray(st.center, dtype=np.float64), np.asarray(st.scale, dtype=np.float64), st.limit, st.lowest_excitation_mps2,
+                math.inf if st.highest_excitation_mps2 is None else st.highest_excitation_mps2,
             )
             for load, st in sorted(self.decision.load_states.items())
         )
@@ -333,9 +337,14 @@ def load_config(
         except RecursionError:
             raise ConfigError(f"{fragment_path}: its tables are nested too deeply to merge") from None
     config = validate_config(data, source=str(path))
-    if log_warnings:
+    warnings = config.credential_warnings() if log_warnings else []
+    if warnings:
+        # structlog (and the asyncio it imports) only when there is something to log: a command
+        # that merely reads the config starts a tenth of a second sooner.
+        from bogiemon.daemon.logs import get_logger
+
         log = get_logger(component="config")
-        for warning in config.credential_warnings():
+        for warning in warnings:
             log.warning(warning, config=str(path))
     return config
 

@@ -148,16 +148,18 @@ class FusedBaselineConfig(Section):
 class LoadStateConfig(Section):
     """A load state the wagon was commissioned in: the centre and spread of its windows' load
     vector (detection/features.py LOAD_FEATURES: each mode's log power share per band), and the
-    distance (RMS of the z-scores) beyond which a window is like nothing seen then. Written by
-    `bogiemon calibrate`."""
+    distance (RMS of the z-scores) its windows reached, stated beside a window's own as evidence
+    (never a gate: daemon/running.py). Written by `bogiemon calibrate`."""
 
     center: list[float]
     scale: list[float]
     limit: float = Field(gt=0)
     windows: int = Field(0, ge=0, le=2**31)
-    # The gentlest excitation (the median channel's RMS, m/s^2) of its commissioning windows: a
-    # window excited more gently is not judged. 0 (calibrations before it): no limit.
+    # The gentlest and the roughest excitation (the median channel's RMS, m/s^2) of its
+    # commissioning windows: running outside is judged with raised levels, far outside not at all
+    # (daemon/running.py). Calibrations before them: 0 and none (no bound).
     lowest_excitation_mps2: float = Field(0.0, ge=0, le=1e6)
+    highest_excitation_mps2: float | None = Field(None, gt=0, le=1e6)
 
     @model_validator(mode="after")
     def _consistent(self) -> LoadStateConfig:
@@ -166,6 +168,8 @@ class LoadStateConfig(Section):
             raise ValueError(f"center and scale need {n} values each (the load features), got {len(self.center)} and {len(self.scale)}")
         if not all(np.isfinite(self.center)) or not all(v > 0 and np.isfinite(v) for v in self.scale):
             raise ValueError("center must be finite and scale finite and positive: calibrate again")
+        if self.highest_excitation_mps2 is not None and self.highest_excitation_mps2 < self.lowest_excitation_mps2:
+            raise ValueError("highest_excitation_mps2 is below lowest_excitation_mps2: calibrate again")
         return self
 
 

@@ -109,6 +109,7 @@ class Judgement:
     alarm_ratio: float = math.nan
     trend: float = math.nan  # the fused trend after this window (NaN: no trend)
     trend_level: Level = Level.OK
+    level_margin: float = 1.0  # the window's limits were raised by this (daemon/running.py)
 
     @property
     def worst(self) -> Level:
@@ -191,9 +192,10 @@ class Decider:
         self.state.recent_shifts = deque(self.state.recent_shifts, maxlen=settings.confirm_n)
         self.state.recent_warnings = deque(self.state.recent_warnings, maxlen=settings.confirm_n)
 
-    def judge(self, window: WindowIndicators, load: LoadState, features: WindowFeatures | None = None) -> Judgement:
+    def judge(self, window: WindowIndicators, load: LoadState, features: WindowFeatures | None = None, level_margin: float = 1.0) -> Judgement:
         """The window's values and levels in a load state (without the trend); features: the
-        window's, if already at hand."""
+        window's, if already at hand; level_margin: its levels x this (running outside the
+        commissioning's excitation, daemon/running.py), the limits stated as they were applied."""
         baseline = self.settings.baselines.get(load)
         x = None
         if baseline is not None and window.spectra is not None:
@@ -203,29 +205,30 @@ class Decider:
         if self.settings.method is Method.FUSED:
             if baseline is None:
                 raise KeyError(f"no fused baseline for load state '{load}'")
-            limits = self._limits(load)
+            limits = self._limits(load, level_margin)
             if shift is None:  # no spectra, or a mode without power: nothing to judge by
-                return Judgement({FUSED_SCORE: math.nan}, {FUSED_SCORE: Level.OK}, limits, None, name)
-            score = float(shift @ shift)
-            level = Level.of(score, baseline.warning, baseline.alarm)
-            return Judgement({FUSED_SCORE: score}, {FUSED_SCORE: level}, limits, shift, name, score / baseline.alarm)
-        thresholds = self.settings.thresholds.get(load)
-        if thresholds is None:
+                return Judgement({FUSED_SCORE: math.nan}, {FUSED_SCORE: Level.OK}, limits, None, name, level_margin=level_margin)
+            score, limit = float(shift @ shift), limits[FUSED_SCORE]
+            level = Level.of(score, limit.warning, limit.alarm)
+            return Judgement({FUSED_SCORE: score}, {FUSED_SCORE: level}, limits, shift, name, score / limit.alarm, level_margin=level_margin)
+        if load not in self.settings.thresholds:
             raise KeyError(f"no thresholds for load state '{load}'")
-        limits = self._limits(load)
+        thresholds = self._limits(load, level_margin)
         values = {n: float(getattr(window, n)) for n in thresholds}
         levels = {n: thresholds[n].level(v) if math.isfinite(v) else Level.OK for n, v in values.items()}
         ratios = [abs(v - thresholds[n].center) / thresholds[n].alarm for n, v in values.items() if math.isfinite(v)]
-        return Judgement(values, levels, limits, shift, name, max(ratios, default=math.nan))
+        return Judgement(values, levels, thresholds, shift, name, max(ratios, default=math.nan), level_margin=level_margin)
 
     def update(
-        self, window: WindowIndicators, load: LoadState, context: Mapping[str, Any] | None = None, features: WindowFeatures | None = None
-    ) -> tuple[Judgement, list[Event]]:
+        self, window: WindowIndicators, load: LoadState, context: Mapping[str, Any] | None = None, features: WindowFeatures | None = None,
+        level_margin: float = 1.0,
+    ) -> tuple[Judgement, list[Event]]:  # fmt: skip
         """Advance the state machine with one judgeable window; return its judgement and events.
 
-        context: more details for the events (e.g. how the load state was decided).
+        context: more details for the events (e.g. how the load state was decided); level_margin:
+        see judge.
         """
-        judgement = self._with_trend(self.judge(window, load, features), load)
+        judgement = self._with_trend(self.judge(window, load, features, level_margin), load)
         s, cfg = self.state, self.settings
         alarm = judgement.worst >= Level.ALARM
         s.recent_alarms.append(alarm)
@@ -286,7 +289,10 @@ class Decider:
             mean = np.zeros(baseline.center.size)  # a new baseline: healthy until shown otherwise
             s.trend_baseline[load] = baseline.fingerprint
         if judgement.shift is not None:
-            mean = mean + trend_weight(self.hop_s, baseline.trend_tau_s) * (judgement.shift - mean)
+            # A window judged with a margin adds its shift shrunk as its levels were raised: the
+            # trend sees it as the window's own level did (score / margin = |shift / sqrt(margin)|^2).
+            shift = judgement.shift / math.sqrt(judgement.level_margin)
+            mean = mean + trend_weight(self.hop_s, baseline.trend_tau_s) * (shift - mean)
         s.trend_mean[load] = mean
         trend = float(mean @ mean)
         level = Level.of(trend, baseline.levels.trend_warning, baseline.levels.trend_alarm)
@@ -308,11 +314,16 @@ class Decider:
             return NO_EVIDENCE
         return diagnose([mean], baseline, load, trend=True)
 
-    def _limits(self, load: LoadState) -> dict[str, Threshold]:
+    def _limits(self, load: LoadState, level_margin: float = 1.0) -> dict[str, Threshold]:
+        """The limits of the values judged in a load state, the window's raised by level_margin
+        (the trend's never: it is the shifts that a margin shrinks for it)."""
         if self.settings.method is Method.FUSED:
             lv = self.settings.baselines[load].levels
-            return {FUSED_SCORE: Threshold(lv.warning, lv.alarm), FUSED_TREND: Threshold(lv.trend_warning, lv.trend_alarm)}
-        return dict(self.settings.thresholds[load])
+            return {
+                FUSED_SCORE: Threshold(lv.warning * level_margin, lv.alarm * level_margin),
+                FUSED_TREND: Threshold(lv.trend_warning, lv.trend_alarm),
+            }
+        return {n: t.widened(level_margin) for n, t in self.settings.thresholds[load].items()}
 
     def _event(self, window: WindowIndicators, kind: EventKind, fired: Mapping[str, float], details: Mapping[str, Any]) -> Event:
         return Event(

@@ -77,27 +77,32 @@ class LoadModel:
 @dataclass(frozen=True)
 class LoadSignature:
     """A load state the wagon was commissioned in (decision.load_states): its windows' load vector
-    (LOAD_NAMES) has this center and robust scale; a window farther than limit (the RMS of its
-    z-scores) is like nothing seen at commissioning. So is a window excited more gently than any of
-    its commissioning windows (excitation_of, m/s^2): the dry-friction dampers stick the more the
-    gentler the running, and the healthy couplings change with them. Not above: running rougher
-    than the commissioning slides the dampers more, towards the linear regime, and a fault itself
-    may raise the frame's excitation."""
+    (LOAD_NAMES) has this center and robust scale, and their distance (the RMS of the z-scores)
+    reached limit; their excitation (excitation_of, m/s^2) spanned lowest..highest.
+
+    The load vector is how the modes share their power between the bands: the track, the speed and
+    the load set it, and so does a broken spring (it moves the modes' frequencies). So its distance
+    is evidence stated with a judgement, never a reason to leave a window unjudged
+    (daemon/running.py): only the excitation, which a one-corner fault hardly moves, says whether
+    the running is like the commissioning's. Old configs have no highest excitation: unbounded."""
 
     load: LoadState
     center: NDArray[np.float64]
     scale: NDArray[np.float64]
     limit: float
     lowest_excitation_mps2: float = 0.0
+    highest_excitation_mps2: float = math.inf
 
     def distance(self, x: NDArray[np.float64]) -> float:
         z = (x - self.center) / self.scale
         return float(np.sqrt(np.mean(z * z)))
 
-    def familiar_excitation(self, excitation_mps2: float) -> bool:
-        """Whether a window of this excitation (excitation_of) is excited at least as much as the
-        gentlest commissioning window."""
-        return excitation_mps2 >= self.lowest_excitation_mps2
+    def excitation_outside(self, excitation_mps2: float) -> float:
+        """How far outside the commissioning's excitation a window runs, as a factor >= 1 (1:
+        within; 2: half the gentlest or twice the roughest commissioning window)."""
+        if not excitation_mps2 > 0:
+            return math.inf
+        return max(1.0, self.lowest_excitation_mps2 / excitation_mps2, excitation_mps2 / self.highest_excitation_mps2)
 
 
 def excitation_of(window: WindowIndicators) -> float:
@@ -130,31 +135,6 @@ class LoadDiscriminant:
     def load_of(self, x: NDArray[np.float64]) -> LoadState | None:
         v = self.value(x)
         return LoadState.FULL if v >= self.margin else LoadState.TARE if v <= -self.margin else None
-
-
-def nearest_load(
-    x: NDArray[np.float64] | None, excitation_mps2: float, states: Sequence[LoadSignature], discriminant: LoadDiscriminant | None = None
-) -> tuple[LoadState | None, float]:
-    """(the commissioned load state of a window of load vector x (load_features) and excitation
-    (excitation_of), its distance to that state); (None, distance) when it is farther than that
-    state's limit, excited more gently than that state's commissioning, between the states (the
-    discriminant's margin), or has no load vector (x None: distance NaN). With a discriminant the
-    state is its side of it (within its margin: the nearest state, if on that side); without, the
-    nearest state."""
-    if x is None or not states:
-        return None, math.nan
-    distance, state = min(((s.distance(x), s) for s in states), key=lambda pair: pair[0])
-    if discriminant is not None and {s.load for s in states} == set(LoadState):
-        load = discriminant.load_of(x)
-        if load is None:
-            # Within the margin: judged only where the nearest state is on the same side of the
-            # line (the two rules agree), else between the states.
-            side = LoadState.FULL if discriminant.value(x) >= 0 else LoadState.TARE
-            familiar = state.load == side and distance <= state.limit and state.familiar_excitation(excitation_mps2)
-            return (state.load if familiar else None), distance
-        state = next(s for s in states if s.load == load)
-        distance = state.distance(x)
-    return (state.load if distance <= state.limit and state.familiar_excitation(excitation_mps2) else None), distance
 
 
 # --------------------------------------------------------------------------------------------

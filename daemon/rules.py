@@ -30,7 +30,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import special
 
 ALARM_MARGIN = 1.1  # the alarm level stays this far above the largest healthy deviation seen
 MAD_TO_SIGMA = 1.4826  # the MAD of a normal distribution times this is its standard deviation
@@ -68,6 +67,10 @@ class Threshold:
     def level(self, value: float) -> Level:
         return Level.of(abs(value - self.center), self.warning, self.alarm)
 
+    def widened(self, factor: float) -> Threshold:
+        """The same center with both levels x factor (>= 1)."""
+        return self if factor == 1.0 else Threshold(self.warning * factor, self.alarm * factor, self.center)
+
     def levels(self, values: ArrayLike) -> NDArray[np.int64]:
         """The level of each value (an array of Level values)."""
         return np.asarray(level_of(np.abs(np.asarray(values, dtype=np.float64) - self.center), self.warning, self.alarm))
@@ -84,6 +87,10 @@ class ThresholdFit(Threshold):
 
 def two_sided_z(rate: float) -> float:
     """The normal quantile beyond which |N(0, 1)| lies with probability `rate`."""
+    # Imported here: only fitting needs it, and scipy.special costs a command that merely
+    # analyses or monitors a quarter of a second of start-up.
+    from scipy import special
+
     return float(-special.ndtri(rate / 2))
 
 

@@ -53,11 +53,9 @@ def status_line(report: WindowVerdict | None, monitor: Monitor) -> str:
     if not report.health.sensors_ok:
         parts.append("sensor fault: " + ", ".join(f"{ch} {'/'.join(p.value for p in ps)}" for ch, ps in report.health.problems.items()))
     if report.unfamiliar is not None:
-        distance = f"distance {report.unfamiliar:.1f}, " if math.isfinite(report.unfamiliar) else ""
-        parts.append(
-            "not judged: the load, the track or the speed is unlike the commissioning's, or between its load states "
-            f"({distance}excitation {excitation_of(report.window):.2f} m/s^2)"
-        )
+        parts.append(f"not judged: the running is unlike the commissioning's ({report.unfamiliar})")
+    elif report.judgement is not None and report.judgement.level_margin > 1.0:
+        parts.append(f"levels x{report.judgement.level_margin:.2f} (excitation {excitation_of(report.window):.2f} m/s^2 outside the commissioning's)")
     if report.load is not None:
         parts.append(f"load {report.load}" + (f" (p_full {report.p_full:.2f})" if report.p_full is not None else ""))
     if report.judgement is not None:

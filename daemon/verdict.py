@@ -19,7 +19,8 @@ from bogiemon.daemon.coverage import CoverageState, CoverageTracker
 from bogiemon.daemon.decision import Decider, DecisionSettings, DecisionState, Judgement
 from bogiemon.daemon.events import Event
 from bogiemon.daemon.health import HealthSettings, WindowHealth, assess_window
-from bogiemon.daemon.models import LoadDiscriminant, LoadModel, LoadSignature, excitation_of, finite_or_none, nearest_load
+from bogiemon.daemon.models import LoadDiscriminant, LoadModel, LoadSignature, excitation_of, finite_or_none
+from bogiemon.daemon.running import choose_load
 from bogiemon.daemon.sensor_tracker import HealthState, HealthTracker
 from bogiemon.daemon.vocabulary import LoadSetting, LoadState, Mode
 from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
@@ -39,9 +40,9 @@ class MonitorSettings:
     config_hash: str
     sensor_clear_after_windows: int = 3
     load_model: LoadModel | None = None
-    # The load states the wagon was commissioned in: with them, load "auto" takes the nearest, and
-    # a window like none of them is not judged (never an alarm for being unfamiliar); with a fixed
-    # load, a window excited more gently than that state's commissioning is not judged either.
+    # The load states the wagon was commissioned in: with them, load "auto" takes the state on the
+    # window's side of the line between them, and a window running outside the commissioning's
+    # excitation is judged with a margin, or not at all far outside it (daemon/running.py).
     load_states: tuple[LoadSignature, ...] = ()
     load_discriminant: LoadDiscriminant | None = None  # with both states: the wagon's own line between them
     # Running left unjudged this long (unlike the commissioning) is said: NOT_JUDGED (daemon/coverage.py).
@@ -57,7 +58,7 @@ class Outcome(enum.Enum):
 
     JUDGED = "judged"
     GATED = "gated"  # the wagon stood, stopped or started, or ran too gently (WindowHealth.gate)
-    UNFAMILIAR = "unfamiliar"  # its load, track or speed unlike the commissioning's, or between its load states
+    UNFAMILIAR = "unfamiliar"  # its running unlike the commissioning's (daemon/running.py): between its load states, or far outside its excitation
     SENSOR = "sensor"  # a sensor problem in it, or a sensor fault not yet cleared
 
 
@@ -73,9 +74,8 @@ class WindowVerdict:
     events: tuple[Event, ...]  # decided on it (committed and reported by the Monitor)
     load: LoadState | None = None  # the load state it was judged in
     p_full: float | None = None  # the estimated probability of full load (load "auto" without commissioning)
-    # Not judged for its load state: the distance of its load vector to the nearest commissioned
-    # state (NaN: a fixed load whose commissioning was excited more than this window).
-    unfamiliar: float | None = None
+    # Not judged for its running: why (daemon/running.py LoadChoice.unjudged).
+    unfamiliar: str | None = None
     # The window's spectral features as the judgement computed them (None: not that far), for
     # readers that need more of them (the back office's fleet evidence reads the couplings).
     features: WindowFeatures | None = None
@@ -124,7 +124,7 @@ class WindowJudge:
 
     def judge(self, window: WindowIndicators, status: Status = ALL_OK, gaps_last_hour: int = 0) -> WindowVerdict:
         verdict = self._judge(window, status, gaps_last_hour)
-        why = {} if verdict.unfamiliar is None else {"load_distance": verdict.unfamiliar}
+        why = {} if verdict.unfamiliar is None else {"unlike": verdict.unfamiliar}
         said = self.coverage.update(window, verdict.judgement is not None, verdict.outcome is Outcome.UNFAMILIAR, why)
         return dataclasses.replace(verdict, events=verdict.events + tuple(said)) if said else verdict
 
@@ -142,28 +142,9 @@ class WindowJudge:
             return verdict()
         features = WindowFeatures(window.spectra, s.geometry) if window.spectra is not None else None
         load_vector = finite_or_none(features.load) if features is not None else None
-        excitation_mps2 = excitation_of(window)
-        fixed = s.load.fixed()
-        context: dict[str, Any] = {"load_source": "configured"}
-        p_full = None
-        if fixed is not None:
-            load = fixed
-            state = next((st for st in s.load_states if st.load == fixed), None)
-            if state is not None and not state.familiar_excitation(excitation_mps2):
-                # A configured load, commissioned: its excitation range holds as it does for "auto".
-                return verdict(unfamiliar=math.nan, features=features)
-        elif s.load_states:
-            nearest, distance = nearest_load(load_vector, excitation_mps2, s.load_states, s.load_discriminant)
-            if nearest is None:
-                return verdict(unfamiliar=distance, features=features)
-            load, context = nearest, {"load_source": "commissioned", "load_distance": round(distance, 3)}
-        else:
-            assert s.load_model is not None
-            p_full = s.load_model.probability_of(features.load) if features is not None else math.nan
-            # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on
-            # the simulated fleets (docs/robust/README.md): no third state is needed.
-            load = LoadState.FULL if p_full >= 0.5 else LoadState.TARE
-            context = {"load_source": "estimated", "p_full": round(p_full, 4)}
-        judgement, decided = self.decider.update(window, load, context, features)
+        choice = choose_load(s.load, load_vector, excitation_of(window), s.load_states, s.load_discriminant, s.load_model)
+        if choice.load is None:
+            return verdict(unfamiliar=choice.unjudged, features=features)
+        judgement, decided = self.decider.update(window, choice.load, choice.context(), features, choice.level_margin)
         events += decided
-        return verdict(judgement=judgement, load=load, p_full=p_full, features=features)
+        return verdict(judgement=judgement, load=choice.load, p_full=choice.p_full, features=features)

@@ -72,13 +72,19 @@ class WindowedChannelStats:
     def push_hop(self, hop: NDArray[np.float64]) -> ChannelStats | None:
         slot = self._n_hops % self.hops_per_window
         self._n_hops += 1
-        self._sum[slot] = hop.sum(axis=0)
-        self._peak[slot] = np.abs(hop).max(axis=0)
-        self._repeats[slot] = (hop[1:] == hop[:-1]).sum(axis=0)
+        # Channel-major: reductions along a contiguous axis run 10 to 30 times faster than down
+        # the columns of an (n, 3) hop.
+        cols = np.ascontiguousarray(hop.T)
+        total = _sequential_sum(cols)
+        self._sum[slot] = total
+        self._peak[slot] = np.abs(cols).max(axis=1)
+        self._repeats[slot] = np.count_nonzero(cols[:, 1:] == cols[:, :-1], axis=1)
         self._boundary[slot] = hop[0] == self._last  # False after a reset: NaN equals nothing
-        self._clipped[slot] = (np.abs(hop) >= self.clip_level_mps2).sum(axis=0)
-        self._hop_rms[slot] = hop.std(axis=0)  # the population RMS about the hop's mean: gravity and bias out
-        self._lead[slot], self._trail[slot], self._longest[slot] = _runs(hop)
+        self._clipped[slot] = np.count_nonzero(np.abs(cols) >= self.clip_level_mps2, axis=1)
+        # The population RMS about the hop's mean (gravity and bias out), as hop.std(axis=0).
+        deviation = cols - (total / hop.shape[0])[:, None]
+        self._hop_rms[slot] = np.sqrt(_sequential_sum(deviation * deviation) / hop.shape[0])
+        self._lead[slot], self._trail[slot], self._longest[slot] = _runs(cols)
         self._last = hop[-1].copy()
         if self._n_hops < self.hops_per_window:
             return None
@@ -118,12 +124,18 @@ class WindowedChannelStats:
         return np.array(out, dtype=np.float64)
 
 
-def _runs(hop: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Per channel of an (n, 3) hop: the lengths of its first run, its last run and its longest."""
-    n = hop.shape[0]
+def _sequential_sum(cols: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per row of a (3, n) array, its sum added left to right: the order, and so the bits, of
+    numpy's sum down the columns of the (n, 3) hop (a contiguous sum adds pairwise)."""
+    return np.cumsum(cols, axis=1)[:, -1]
+
+
+def _runs(cols: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Per channel of a (3, n) hop: the lengths of its first run, its last run and its longest."""
+    n = cols.shape[1]
     lead, trail, longest = (np.empty(3, dtype=np.int64) for _ in range(3))
     for c in range(3):
-        changes = np.flatnonzero(hop[1:, c] != hop[:-1, c])  # a run ends at each of these samples
+        changes = np.flatnonzero(cols[c, 1:] != cols[c, :-1])  # a run ends at each of these samples
         edges = np.concatenate(([-1], changes, [n - 1]))
         lengths = np.diff(edges)
         lead[c], trail[c], longest[c] = lengths[0], lengths[-1], lengths.max()

@@ -36,10 +36,32 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy import fft
 from numpy.typing import NDArray
-from scipy import fft
 
 from bogiemon.detection.hops import HopAssembler
+
+
+def next_fast_len(n: int) -> int:
+    """The smallest 5-smooth number (2^a 3^b 5^c) >= n: a length pocketfft transforms fastest.
+
+    scipy.fft.next_fast_len(n, real=True), written out: the core transforms with numpy.fft (the
+    same pocketfft, the same values bit for bit) so that a command that only analyses never
+    imports scipy.fft, whose array-API layer and scipy.special cost a third of a second of start-up.
+    """
+    if n < 1:
+        raise ValueError(f"a transform length is at least 1, got {n}")
+    best = 1 << max(n - 1, 0).bit_length()  # the next power of two
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            # The smallest power of two taking p35 to n or beyond.
+            p2 = 1 << max(-(-n // p35) - 1, 0).bit_length()
+            best = min(best, p35 * p2)
+            p35 *= 3
+        p5 *= 5
+    return best
 
 
 def xcorr_direct(x: NDArray[np.float64], y: NDArray[np.float64], max_lag_n: int) -> NDArray[np.float64]:
@@ -109,15 +131,22 @@ class StreamingCrossCorrelator:
         # Only channels of lagged pairs need history; map them to compact columns.
         self._lag_channels = sorted({c for pair in self._pairs for c in pair})
         self._lag_col = {c: i for i, c in enumerate(self._lag_channels)}
-        self._nfft_block = fft.next_fast_len(hop_n + max_lag_n, real=True)
-        self._nfft_head = fft.next_fast_len(max(2 * max_lag_n, 1), real=True)  # used when K > H
+        self._nfft_block = next_fast_len(hop_n + max_lag_n)
+        self._nfft_head = next_fast_len(max(2 * max_lag_n, 1))  # used when K > H
         self._pair_cols = (
             np.array([self._lag_col[i] for i, _ in self._pairs], dtype=np.intp),
             np.array([self._lag_col[j] for _, j in self._pairs], dtype=np.intp),
         )
+        lag = self._lag_channels
+        # The lagged channels of a hop: a view when they are adjacent columns (the core's are).
+        self._lag_take: slice | list[int] = slice(lag[0], lag[-1] + 1) if lag == list(range(lag[0], lag[-1] + 1)) else lag
         n_lag_ch = len(self._lag_channels)
-        # The last window_n + K samples of the lagged channels: [s - K, s + N) at emission time.
-        self._history = np.zeros((window_n + max_lag_n, n_lag_ch))
+        # The last window_n + K samples of the lagged channels, [s - K, s + N) at emission time, are
+        # rows [end - held, end) of a buffer several windows long: a hop is appended, and the held
+        # rows move to its start only when it is full (copying them every hop cost a tenth of the core).
+        self._held_n = window_n + max_lag_n
+        self._buffer = np.zeros((self._held_n + max(self._held_n, 8 * hop_n), n_lag_ch))
+        self._end = self._held_n
         self._hops = HopAssembler(hop_n, n_channels)
         # Per hop, per pair and direction (x leads, y leads): the cross-spectra of the hop against
         # itself and against the K samples before it; and the zero-lag sums.
@@ -129,9 +158,15 @@ class StreamingCrossCorrelator:
 
     def reset(self) -> None:
         """Start a new segment: nothing before this point is paired with what follows."""
-        self._history.fill(0.0)
+        self._buffer.fill(0.0)
+        self._end = self._held_n
         self._hops.reset()
         self._n_hops = 0
+
+    @property
+    def _history(self) -> NDArray[np.float64]:
+        """(window_n + K, lagged channels): the samples a window's correlations may pair."""
+        return self._buffer[self._end - self._held_n : self._end]
 
     def push(self, block: NDArray[np.float64]) -> list[WindowCorrelations]:
         """Feed an (n, n_channels) block; return the windows completed by it, oldest first."""
@@ -144,9 +179,13 @@ class StreamingCrossCorrelator:
 
     def _complete_hop(self, hop: NDArray[np.float64]) -> WindowCorrelations | None:
         h, k_max = self.hop_n, self.max_lag_n
+        buffer, keep = self._buffer, self._held_n - h
+        if self._end + h > buffer.shape[0]:
+            buffer[:keep] = buffer[self._end - keep : self._end]
+            self._end = keep
+        buffer[self._end : self._end + h] = hop[:, self._lag_take]
+        self._end += h
         hist = self._history
-        hist[:-h] = hist[h:]
-        hist[-h:] = hop[:, self._lag_channels]
         slot = self._n_hops % self._blocks_per_window
         self._n_hops += 1
 
@@ -156,8 +195,8 @@ class StreamingCrossCorrelator:
             padded[k_max : k_max + h] = hist[-h:]
             spec_hop = fft.rfft(padded, axis=0)
             spec_pre = fft.rfft(hist[-(h + k_max) :], n=self._nfft_block, axis=0) - spec_hop
-            self._spec_in[slot] = self._cross_spectra(spec_hop, spec_hop)
-            self._spec_pre[slot] = self._cross_spectra(spec_hop, spec_pre)
+            self._cross_spectra(spec_hop, spec_hop, out=self._spec_in[slot])
+            self._cross_spectra(spec_hop, spec_pre, out=self._spec_pre[slot])
         for p, (i, j) in enumerate(self._zero_lag_pairs):
             self._block_zero_lag[slot, p] = np.dot(hop[:, i], hop[:, j])
 
@@ -166,13 +205,18 @@ class StreamingCrossCorrelator:
         return self._emit(first_slot=self._n_hops % self._blocks_per_window)
 
     def _cross_spectra(
-        self, spec_lead: NDArray[np.complex128], spec_lag: NDArray[np.complex128]
+        self, spec_lead: NDArray[np.complex128], spec_lag: NDArray[np.complex128], out: NDArray[np.complex128] | None = None
     ) -> NDArray[np.complex128]:
-        """(n_pairs, 2, bins): lead(x) * conj(lag(y)), then lead(y) * conj(lag(x)), per pair."""
+        """(n_pairs, 2, bins): lead(x) * conj(lag(y)), then lead(y) * conj(lag(x)), per pair (into
+        out, a hop's slot, when given: no temporary the size of the slot)."""
         i, j = self._pair_cols
         x_lead, y_lead = spec_lead[:, i].T, spec_lead[:, j].T  # (n_pairs, bins)
         x_lag, y_lag = spec_lag[:, i].T, spec_lag[:, j].T
-        return np.stack([x_lead * np.conj(y_lag), y_lead * np.conj(x_lag)], axis=1)
+        if out is None:
+            out = np.empty((len(self._pairs), 2, spec_lead.shape[0]), dtype=np.complex128)
+        np.multiply(x_lead, np.conj(y_lag), out=out[:, 0])
+        np.multiply(y_lead, np.conj(x_lag), out=out[:, 1])
+        return out
 
     def _emit(self, first_slot: int) -> WindowCorrelations:
         k_max, n, h = self.max_lag_n, self.window_n, self.hop_n

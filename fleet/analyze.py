@@ -16,39 +16,39 @@ and the rest goes on.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
-import logging
 import math
-import os
+import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from bogiemon.daemon.analysis import recording_settings
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.sources import open_replay_source
-from bogiemon.daemon.windowing import BlockWindows, SegmentStart, Status
+from bogiemon.daemon.windowing import BlockWindows, Status
 from bogiemon.detection import WindowIndicators
-from bogiemon.drivers.atomic import final_name_of, write_atomically
+from bogiemon.drivers.atomic import final_name_of, write_atomically, write_text_atomically
 from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.fleet import rows
-from bogiemon.fleet.layout import Day, Fleet, InputFile, Issue, Wagon, scan_fleet
+from bogiemon.fleet.cluster import DaskRunner, Runner, check_options, dask_runner, local_client
+from bogiemon.fleet.layout import Fleet, FleetError, InputFile, Issue, scan_fleet
+from bogiemon.fleet.paths import inside, make_room, output_folder, shown, write_parquet
+from bogiemon.fleet.windows_files import (
+    FORMAT, PART_FILE, SUMMARY_FILE, Footer, PartitionError, PartitionMeta, content_digest, identity, partition_path, partition_place, read_footer,
+    read_ledger, read_partition,
+)  # fmt: skip
 
-# 2: the channels' hop RMS range (the non-stationary gate) in every row; 3: the spectra's three
-# noise-floor bands above 64 Hz (the sensor noise-floor check); 4: no conclusions in the rows (the
-# judge draws them), each segment start says whether it is a gap.
-FORMAT = 4
-PART_FILE = "part-0.parquet"
-METADATA_KEY = b"bogiemon"
-SUMMARY_FILE = "_analysis.json"
+# Kept importable from here: the bench and the tests use them as they did before the split.
+__all__ = ["FORMAT", "PART_FILE", "AnalyzeSummary", "DayResult", "DayTask", "analysis_digest", "analyze_day", "analyze_fleet", "day_tasks",
+           "local_client", "partition_path"]  # fmt: skip
 # CSV recordings are fed in the longest blocks a [source] allows: the windows do not depend on the
 # block length (the core takes whole hops), the speed does a little.
 CSV_BLOCK_S = 10.0
@@ -67,6 +67,9 @@ class DayTask:
     config: BogiemonConfig
     digest: str
     path: Path  # the partition file
+    # Its footer is in order but the file is not as the last run left it: read it whole first,
+    # keep it if it is sound, else analyse the day again.
+    verify: bool = False
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,7 @@ class DayResult:
     skipped: tuple[Issue, ...]
     elapsed_s: float
     reused: bool = False
+    repaired: Issue | None = None  # the partition found damaged and analysed again
 
 
 def analysis_digest(config: BogiemonConfig) -> str:
@@ -94,26 +98,21 @@ def analysis_digest(config: BogiemonConfig) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def partition_path(out_dir: str | Path, wagon_id: str, date: str) -> Path:
-    return Path(out_dir) / f"wagon={wagon_id}" / f"date={date}" / PART_FILE
+def _inputs(files: Sequence[InputFile]) -> list[tuple[str, int, int]]:
+    return [f.key for f in files]
 
 
-def partition_metadata(path: Path) -> dict[str, Any] | None:
-    """The bogiemon metadata of a written partition; None when it is absent or unreadable."""
-    try:
-        meta = pq.read_schema(path).metadata or {}
-        return json.loads(meta[METADATA_KEY])
-    except (OSError, KeyError, ValueError, pa.ArrowException):
-        return None
-
-
-def _inputs(files: Sequence[InputFile]) -> list[list[Any]]:
-    return [list(f.key) for f in files]
+def is_current(task: DayTask, meta: PartitionMeta) -> bool:
+    """Whether a sound partition's windows are those of the day's inputs and settings now."""
+    return meta.processing == task.digest and [tuple(i) for i in meta.inputs] == _inputs(task.files)
 
 
 def is_done(task: DayTask) -> bool:
-    meta = partition_metadata(task.path)
-    return meta is not None and meta.get("format") == FORMAT and meta.get("processing") == task.digest and meta.get("inputs") == _inputs(task.files)
+    """Whether the task's partition is sound and current (read whole: what a test asks)."""
+    try:
+        return is_current(task, read_partition(task.path, task.midnight_s).meta)
+    except PartitionError:
+        return False
 
 
 def day_tasks(fleet: Fleet, out_dir: str | Path) -> list[DayTask]:
@@ -204,12 +203,21 @@ def _after(blocks: list[Block], time_s: float) -> list[Block]:
 def analyze_day(task: DayTask) -> DayResult:
     """Analyse one wagon-day and write its partition (atomically); returns what it did.
 
-    The day's recordings are taken in time order (first sample, the longer first). The recorder's
-    snapshots overlap by design (a CONFIRMED one holds most of the SUSPECTED one before it): a
-    recording's samples that an earlier one already gave are left out, one wholly covered is
-    counted as covered, and the rest of it is analysed as a new segment.
+    With task.verify, the partition there is read whole first and kept if it is sound. The day's
+    recordings are taken in time order (first sample, the longer first). The recorder's snapshots
+    overlap by design (a CONFIRMED one holds most of the SUSPECTED one before it): a recording's
+    samples that an earlier one already gave are left out, one wholly covered is counted as
+    covered, and the rest of it is analysed as a new segment.
     """
     started = time.perf_counter()
+    repaired = None
+    if task.verify:
+        try:
+            partition = read_partition(task.path, task.midnight_s)
+        except PartitionError as exc:
+            repaired = Issue(str(task.path), _damaged(exc))
+        else:
+            return _reused(task, partition.meta, partition.table.num_rows)
     day = _DayWindows(task.config)
     skipped: list[Issue] = []
     read: list[tuple[float, float, str, InputFile, list[Block]]] = []
@@ -245,18 +253,18 @@ def analyze_day(task: DayTask) -> DayResult:
         samples += sum(b.n_samples for b in blocks)
         recorded_s += sum(b.n_samples / b.fs_hz for b in blocks)
     table = rows.to_table(day.windows, day.recordings, day.segments, day.status)
-    meta = {
-        "format": FORMAT,
-        "inputs": _inputs(task.files),
-        "processing": task.digest,
-        "skipped": [[i.path, i.reason] for i in skipped],
-        "covered": covered,
-        "segment_starts": [[st.start_s, st.fs_hz, st.gap] for st in day.blocks.segment_starts],
-        "recorded_s": recorded_s,
-    }
-    table = table.replace_schema_metadata({METADATA_KEY: json.dumps(meta).encode()})
-    _write_atomically(table, task.path)
-    return DayResult(task.wagon_id, task.date, len(day.windows), used, samples, recorded_s, tuple(skipped), time.perf_counter() - started)
+    meta = PartitionMeta(
+        format=FORMAT, inputs=_inputs(task.files), processing=task.digest, skipped=[(i.path, i.reason) for i in skipped],
+        covered=covered, segment_starts=[(st.start_s, st.fs_hz, st.gap) for st in day.blocks.segment_starts], recorded_s=recorded_s,
+        windows_sha256=content_digest(table),
+    )  # fmt: skip
+    try:
+        task.path.parent.mkdir(parents=True, exist_ok=True)  # the run made room for it (make_room); a caller of this alone did not
+        write_atomically(task.path, lambda temporary: write_parquet(table.replace_schema_metadata(meta.as_metadata()), temporary))
+    except OSError as exc:
+        raise FleetError(f"{shown(task.path)}: the partition cannot be written ({exc.strerror or exc})") from None
+    return DayResult(task.wagon_id, task.date, len(day.windows), used, samples, recorded_s, tuple(skipped), time.perf_counter() - started,
+                     repaired=repaired)  # fmt: skip
 
 
 def _unparsable(exc: BaseException, name: str) -> str:
@@ -265,20 +273,17 @@ def _unparsable(exc: BaseException, name: str) -> str:
     return f"does not parse: {kind}{' '.join(reason.split())[:300]}"
 
 
-def _write_atomically(table: pa.Table, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomically(path, lambda temporary: pq.write_table(table, temporary, compression="zstd"))
+def _damaged(exc: PartitionError) -> str:
+    """Why a partition was analysed again (the path is the issue's)."""
+    return f"{exc.problem}: analysed again"
 
 
 def _utc(time_s: float) -> str:
     return time.strftime("%Y-%m-%d %H:%M:%SZ", time.gmtime(time_s))
 
 
-def _reused(task: DayTask) -> DayResult:
-    meta = partition_metadata(task.path) or {}
-    n = pq.read_metadata(task.path).num_rows
-    skipped = tuple(Issue(p, r) for p, r in meta.get("skipped", []))
-    return DayResult(task.wagon_id, task.date, n, len(task.files) - len(skipped), 0, float(meta.get("recorded_s", 0.0)), skipped, 0.0, reused=True)
+def _reused(task: DayTask, meta: PartitionMeta, num_rows: int) -> DayResult:
+    return DayResult(task.wagon_id, task.date, num_rows, len(task.files) - len(meta.skipped), 0, meta.recorded_s, meta.issues, 0.0, reused=True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -299,28 +304,14 @@ class AnalyzeSummary:
     workers: int
     issues: tuple[Issue, ...]  # of the tree and of the recordings
     results: tuple[DayResult, ...]
+    repaired: tuple[Issue, ...] = ()  # partitions found damaged (or something else in their place), analysed again
 
     def as_dict(self) -> dict[str, Any]:
-        out = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("issues", "results")}
+        out = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("issues", "results", "repaired")}
         out["issues"] = [i.as_dict() for i in self.issues]
+        out["repaired"] = [i.as_dict() for i in self.repaired]
         out["busy_s"] = sum(r.elapsed_s for r in self.results)
         return out
-
-
-def local_client(n_workers: int | None = None) -> Any:
-    """A Dask LocalCluster of one single-threaded process per core (the analysis is numpy's: one
-    thread per process keeps the cores busy without BLAS threads fighting over them)."""
-    from distributed import Client, LocalCluster
-
-    # The scheduler of a LocalCluster runs in this process: its INFO lines (start, close) are
-    # noise on a command line; warnings and errors still show.
-    logging.getLogger("distributed").setLevel(logging.WARNING)
-    workers = n_workers or os.cpu_count() or 1
-    cluster = LocalCluster(
-        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40,
-        env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"},
-    )  # fmt: skip
-    return Client(cluster)
 
 
 def analyze_fleet(
@@ -331,84 +322,103 @@ def analyze_fleet(
     n_workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     redo: bool = False,
+    runner: Runner | None = None,
 ) -> AnalyzeSummary:
     """Analyse every wagon-day not yet done; see the module docstring.
 
-    client: a distributed.Client to use; else one to `scheduler` (tcp://HOST:PORT), else a
+    The tasks run on `runner` if given (fleet/cluster.py: InProcess runs them here), else on
+    `client` (a distributed.Client), else on a client to `scheduler` (tcp://HOST:PORT), else on a
     LocalCluster of n_workers (default: one per core) for this run. progress(done, total) is
-    called as partitions finish.
+    called as partitions finish. Every partition is checked before it is reused: one whose footer
+    is not what analyze writes, or that is not as the last run left it and does not read whole
+    and sound, is analysed again and named (AnalyzeSummary.repaired).
     """
-    from distributed import Client, as_completed
-
     started = time.perf_counter()
+    check_options(scheduler, n_workers)
     fleet = scan_fleet(root)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    for stale in out.glob("wagon=*/date=*/.*"):  # a run killed while writing
-        if final_name_of(stale.name) == PART_FILE:
-            stale.unlink(missing_ok=True)
+    out = output_folder(out_dir, FleetError, "WINDOWS", {"FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
+    ledger = read_ledger(out)
+    _remove_temporaries(out)
     tasks = day_tasks(fleet, out)
-    todo = [t for t in tasks if redo or not is_done(t)]
-    results = [_reused(t) for t in tasks if t not in todo]
-    own = None
+    todo: list[DayTask] = []
+    results: list[DayResult] = []
+    repaired: list[Issue] = []
+    for task in tasks:
+        footer, problem = _footer(task, out) if not redo else (None, None)
+        if problem is not None:
+            repaired.append(Issue(str(task.path), problem))
+        if footer is not None and is_current(task, footer.meta):
+            if ledger.get(_ledger_key(task, out)) == identity(task.path):
+                results.append(_reused(task, footer.meta, footer.num_rows))
+                continue
+            task = dataclasses.replace(task, verify=True)
+        moved = make_room(task.path, out)
+        if moved is not None and problem is None:
+            repaired.append(Issue(str(task.path), f"{moved}: removed, the day analysed again"))
+        todo.append(task)
+    workers = 0
     if todo:
-        if client is None:
-            own = Client(scheduler) if scheduler else local_client(n_workers)
-            client = own
-        futures: list[Any] = []
-        try:
-            workers = len(client.scheduler_info().get("workers", {}))
-            futures = client.map(analyze_day, todo, pure=False)
-            done = 0
-            for future in as_completed(futures):
-                results.append(future.result())
-                done += 1
+        with _runner(runner, client, scheduler, n_workers) as run, contextlib.closing(run.map(analyze_day, todo)) as done:
+            workers = run.workers
+            for n, result in enumerate(done, start=1):
+                results.append(result)
+                if result.repaired is not None:
+                    repaired.append(result.repaired)
                 if progress is not None:
-                    progress(done, len(todo))
-        except BaseException:
-            # Interrupted or failed: no wagon-day not yet started starts after this (on a shared
-            # scheduler it would run on unasked). One already running ends and writes its partition
-            # whole (atomically), which the next run reuses.
-            client.cancel(futures)
-            raise
-        finally:
-            if own is not None:
-                cluster = own.cluster
-                own.close()
-                if cluster is not None:
-                    cluster.close()
-    else:
-        workers = 0
+                    progress(n, len(todo))
     results.sort(key=lambda r: (r.wagon_id, r.date))
     issues = (*fleet.issues, *(i for r in results for i in r.skipped))
+    analysed = sum(1 for r in results if not r.reused)
     summary = AnalyzeSummary(
-        root=str(Path(root).resolve()), out_dir=str(out), wagons=len(fleet.wagons), partitions=len(tasks), analysed=len(todo),
-        reused=len(tasks) - len(todo), windows=sum(r.windows for r in results),
+        root=str(fleet.root), out_dir=str(out), wagons=len(fleet.wagons), partitions=len(tasks), analysed=analysed,
+        reused=len(tasks) - analysed, windows=sum(r.windows for r in results),
         recorded_s=sum(r.recorded_s for r in results if not r.reused), elapsed_s=time.perf_counter() - started,
-        workers=workers, issues=tuple(issues), results=tuple(results),
+        workers=workers, issues=tuple(issues), results=tuple(results), repaired=tuple(repaired),
     )  # fmt: skip
-    (out / SUMMARY_FILE).write_text(json.dumps(summary.as_dict(), indent=1) + "\n", encoding="utf-8")
+    written = {_ledger_key(t, out): i for t in tasks if (i := identity(t.path)) is not None}
+    document = summary.as_dict() | {"written": written}
+    try:
+        make_room(out / SUMMARY_FILE, out)  # a folder there (WINDOWS is analyze's own) would refuse the rename for good
+        write_text_atomically(out / SUMMARY_FILE, json.dumps(document, indent=1) + "\n")
+    except OSError as exc:
+        raise FleetError(f"{shown(out / SUMMARY_FILE)}: cannot be written ({exc.strerror or exc})") from None
     return summary
 
 
-def wagon_partitions(out_dir: str | Path, wagon: Wagon) -> list[tuple[Day, Path]]:
-    """The written partitions of a wagon's days, in date order (days not analysed left out)."""
-    return [(d, p) for d in wagon.days if (p := partition_path(out_dir, wagon.wagon_id, d.date)).is_file()]
-
-
-def segment_starts_of(meta: dict[str, Any]) -> list[SegmentStart]:
-    """The segment starts a partition's metadata lists, in time order; ValueError if malformed."""
+def _footer(task: DayTask, out: Path) -> tuple[Footer | None, str | None]:
+    """The partition's checked footer, or why there is none worth keeping (None: nothing there yet)."""
+    place = partition_place(task.path, out)
+    if place == "missing":
+        return None, None
+    if place is not None:
+        return None, f"{place} in the place of the partition: removed, the day analysed again"
     try:
-        starts = [SegmentStart(float(t), float(fs), bool(gap)) for t, fs, gap in meta.get("segment_starts", [])]
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"segment_starts: expected [start_s, fs_hz, gap] triples ({exc})") from None
-    return sorted(starts, key=lambda s: s.start_s)
+        return read_footer(task.path, task.midnight_s), None
+    except PartitionError as exc:
+        return None, _damaged(exc)
 
 
-def read_partition(path: Path) -> tuple[pa.Table, dict[str, Any]]:
-    """A partition's windows and metadata; ValueError for one of another format (its columns differ)."""
-    table = pq.read_table(path)
-    meta = json.loads((table.schema.metadata or {})[METADATA_KEY])
-    if meta.get("format") != FORMAT:
-        raise ValueError(f"written in format {meta.get('format')!r}, this bogiemon reads {FORMAT}: run `bogiemon fleet analyze` again")
-    return table, meta
+def _ledger_key(task: DayTask, out: Path) -> str:
+    return task.path.relative_to(out).parent.as_posix()
+
+
+def _remove_temporaries(out: Path) -> None:
+    """What a run killed while writing left: hidden temporaries of partitions."""
+    for stale in out.glob("wagon=*/date=*/.*"):
+        # glob follows a symlinked wagon= or date= folder: what lies outside WINDOWS is not ours to remove
+        if final_name_of(stale.name) == PART_FILE and inside(out, stale.parent):
+            if stale.is_dir() and not stale.is_symlink():
+                shutil.rmtree(stale, ignore_errors=True)
+            else:
+                stale.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def _runner(runner: Runner | None, client: Any, scheduler: str | None, n_workers: int | None) -> Iterator[Runner]:
+    if runner is not None:
+        yield runner
+    elif client is not None:
+        yield DaskRunner(client)
+    else:
+        with dask_runner(scheduler, n_workers) as dask:
+            yield dask

@@ -19,9 +19,9 @@ from bogiemon.daemon.calibrate import CalibrationResult, calibrate_windows, frag
 from bogiemon.daemon.config import load_config
 from bogiemon.detection import WindowIndicators
 from bogiemon.drivers.atomic import write_text_atomically
-from bogiemon.fleet import rows
-from bogiemon.fleet.analyze import read_partition, wagon_partitions
 from bogiemon.fleet.layout import CALIBRATION, FleetError, scan_fleet
+from bogiemon.fleet.paths import place_of, shown
+from bogiemon.fleet.windows_files import partition_path, partition_place, read_partition
 
 
 @dataclass(frozen=True)
@@ -45,27 +45,33 @@ def calibrate_wagon(
     fleet = scan_fleet(fleet_root)
     wagon = fleet.wagon(wagon_id)
     target = wagon.folder / CALIBRATION
-    if target.exists() and not force:
-        raise FleetError(f"{target}: the wagon is commissioned already; pass --force to replace its calibration")
-    partitions = wagon_partitions(windows_dir, wagon)
+    place = place_of(target)
+    if place not in ("missing", None):
+        raise FleetError(f"{shown(target)}: {place} in the place of the calibration; remove it, then calibrate the wagon")
+    if place is None and not force:
+        raise FleetError(f"{shown(target)}: the wagon is commissioned already; pass --force to replace its calibration")
+    if not Path(windows_dir).is_dir():
+        raise FleetError(f"{shown(windows_dir)}: no such windows dataset (run `bogiemon fleet analyze` first)")
+    # The days analysed: a partition file there (read and checked below; a damaged one is named).
+    out_root = Path(windows_dir).resolve()
+    partitions = [(d, p) for d in wagon.days if partition_place(p := partition_path(windows_dir, wagon.wagon_id, d.date), out_root) is None]
     if days:
         unknown = sorted(set(days) - {d.date for d, _ in partitions})
         if unknown:
-            raise FleetError(f"{wagon_id}: no analysed windows for {', '.join(unknown)} (run `bogiemon fleet analyze` first)")
+            raise FleetError(f"{wagon_id}: no analysed windows for {shown(', '.join(unknown), 200)} (run `bogiemon fleet analyze` first)")
         chosen = [(d, p) for d, p in partitions if d.date in set(days)]
     else:
         chosen = partitions[: max(1, first_days)]
     if not chosen:
-        raise FleetError(f"{wagon_id}: no analysed days in {windows_dir} (run `bogiemon fleet analyze` first)")
+        raise FleetError(f"{wagon_id}: no analysed days in {shown(windows_dir)} (run `bogiemon fleet analyze` first)")
     windows: list[WindowIndicators] = []
-    for _, path in chosen:
-        try:
-            table, _ = read_partition(path)
-        except ValueError as exc:
-            raise FleetError(f"{path}: {exc}") from None
-        windows += rows.from_table(table)
+    for day, path in chosen:
+        windows += read_partition(path, day.midnight_s).windows()  # PartitionError: a FleetError naming it
     config = load_config(wagon.config_path, log_warnings=False)  # the wagon's own config, without the old calibration
     files = tuple(str(p) for _, p in chosen)
     result = calibrate_windows(windows, config, load, files=files)
-    write_text_atomically(target, fragment(result))
+    try:
+        write_text_atomically(target, fragment(result))
+    except OSError as exc:
+        raise FleetError(f"{shown(target)}: cannot be written ({exc.strerror or exc})") from None
     return FleetCalibration(wagon_id, target, tuple(d.date for d, _ in chosen), result)

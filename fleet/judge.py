@@ -13,6 +13,8 @@ its sisters (fleet/evidence.py).
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import math
 import time
@@ -23,7 +25,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from bogiemon.daemon.decision import FUSED_TREND
 from bogiemon.daemon.events import Event, EventKind
@@ -34,10 +35,11 @@ from bogiemon.daemon.verdict import Outcome, WindowVerdict
 from bogiemon.daemon.vocabulary import LoadState, Mode
 from bogiemon.daemon.windowing import GapMemory, Windowed
 from bogiemon.drivers.atomic import write_atomically, write_text_atomically
-from bogiemon.fleet import rows
 from bogiemon.fleet.judged_files import JUDGED_FORMAT, WagonState
-from bogiemon.fleet.analyze import SUMMARY_FILE, read_partition, segment_starts_of, wagon_partitions
-from bogiemon.fleet.layout import Fleet, Issue, Wagon, scan_fleet
+from bogiemon.fleet.cluster import DaskRunner, InProcess, Runner
+from bogiemon.fleet.layout import Day, Fleet, Issue, Wagon, scan_fleet
+from bogiemon.fleet.paths import make_room, output_folder, shown, write_parquet
+from bogiemon.fleet.windows_files import PartitionError, partition_path, partition_place, read_footer, read_partition, read_summary
 
 SERIES_FIELDS = (
     ("time_s", pa.float64()), ("judged", pa.bool_()), ("load", pa.string()), ("score", pa.float64()),
@@ -45,6 +47,7 @@ SERIES_FIELDS = (
     ("trend_alarm", pa.float64()), ("mode", pa.string()), ("gate", pa.string()), ("sensor_problems", pa.string()),
 )  # fmt: skip
 SERIES_SCHEMA = pa.schema(SERIES_FIELDS)
+SERIES_FILE = "part-0.parquet"
 NAN = math.nan
 
 
@@ -127,22 +130,35 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
     last_end_s = -math.inf
     issues: list[Issue] = []
     days: list[str] = []
-    partitions = wagon_partitions(out_dir, wagon)
+    # The footers first (cheap), so that the last day to judge is known before the days are read
+    # whole, one at a time.
+    partitions: list[tuple[Day, Path]] = []
+    out_root = Path(out_dir).resolve()
+    for day in wagon.days:
+        path = partition_path(out_dir, wagon.wagon_id, day.date)
+        place = partition_place(path, out_root)
+        try:
+            if place == "missing":
+                raise PartitionError(path, "not analysed yet", "run `bogiemon fleet analyze` first")
+            if place is not None:
+                raise PartitionError(path, f"{place} in the place of the partition")
+            read_footer(path, day.midnight_s)
+        except PartitionError as exc:
+            issues.append(_not_judged(exc))
+            continue
+        partitions.append((day, path))
     for index, (day, path) in enumerate(partitions):
         try:
-            table, meta = read_partition(path)
-            windows = rows.from_table(table)
-            status = rows.status_of(table)
-            segments = table.column("segment").to_pylist()
-            starts = segment_starts_of(meta)
-        except (OSError, KeyError, ValueError, TypeError, pa.ArrowException) as exc:
-            issues.append(Issue(str(path), f"partition does not read, day skipped: {exc}"))
+            partition = read_partition(path, day.midnight_s)
+        except PartitionError as exc:
+            issues.append(_not_judged(exc))
             continue
+        windows, status, segments, starts = partition.windows(), partition.status(), partition.segments(), partition.meta.starts
         if windows and windows[0].start_s < last_end_s:
             issues.append(Issue(str(path), "day out of order: its first window starts before the previous day's last one ends; skipped"))
             continue
         days.append(day.date)
-        issues += [Issue(str(p), str(r)) for p, r in meta.get("skipped", [])]
+        issues += partition.meta.issues
         series.first_day, series.last_day = len(days) == 1, index == len(partitions) - 1
         next_start = 0
         for window, window_status, segment in zip(windows, status, segments, strict=True):
@@ -172,6 +188,10 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
         sensor_fault_windows=c.sensor_fault_windows, trend=_finite(series.trend), trend_alarm=_finite(series.trend_alarm),
         days=tuple(days), evidence=mean_evidence, issues=tuple(issues),
     )  # fmt: skip
+
+
+def _not_judged(exc: PartitionError) -> Issue:
+    return Issue(exc.path, f"{exc.problem}: day not judged; {exc.advice}")
 
 
 def _finite(value: float | None) -> float | None:
@@ -207,11 +227,10 @@ class JudgeSummary:
 
 def fleet_root_of(windows_dir: str | Path) -> Path:
     """The fleet folder a windows dataset was analysed from (its _analysis.json)."""
-    path = Path(windows_dir) / SUMMARY_FILE
     try:
-        return Path(json.loads(path.read_text(encoding="utf-8"))["root"])
-    except (OSError, ValueError, KeyError, TypeError):
-        raise JudgeError(f"{windows_dir}: not a windows dataset of `bogiemon fleet analyze` (no readable {SUMMARY_FILE}); name the fleet with --fleet") from None
+        return Path(read_summary(Path(windows_dir), JudgeError).root)
+    except JudgeError as exc:
+        raise JudgeError(f"{exc}; is {shown(windows_dir)} a windows dataset of `bogiemon fleet analyze`? Or name the fleet with --fleet") from None
 
 
 def judge_fleet(
@@ -226,29 +245,33 @@ def judge_fleet(
 
     started = time.perf_counter()
     if not Path(windows_dir).is_dir():
-        raise JudgeError(f"{windows_dir}: no such windows dataset (run `bogiemon fleet analyze FLEET -o {windows_dir}` first)")
+        raise JudgeError(f"{shown(windows_dir)}: no such windows dataset (run `bogiemon fleet analyze FLEET -o {shown(windows_dir)}` first)")
     fleet = scan_fleet(fleet_root if fleet_root is not None else fleet_root_of(windows_dir))
+    out = output_folder(out_dir, JudgeError, "JUDGED", {"WINDOWS": windows_dir, "FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
     judged = _judge_all(fleet, windows_dir, client, progress)
-    out = Path(out_dir)
-    (out / "series").mkdir(parents=True, exist_ok=True)
     relative = fleet_relative(fleet, judged)
-    write_text_atomically(out / "events.jsonl", "".join(encode_event(j.wagon_id, seq, event) + "\n" for j in judged for seq, event in j.events))
     entries = []
-    for wagon, j in zip(fleet.wagons, judged, strict=True):
-        part = out / "series" / f"wagon={wagon.wagon_id}"
-        part.mkdir(parents=True, exist_ok=True)
-        write_atomically(part / "part-0.parquet", lambda temporary, series=j.series: pq.write_table(series, temporary, compression="zstd"))
-        entries.append(_wagon_entry(wagon, j, relative.get(wagon.wagon_id)))
-    entries.sort(key=lambda e: (-e["attention"], e["wagon"]))
-    issues = (*fleet.issues, *(i for j in judged for i in j.issues))
-    document = {
-        "format": JUDGED_FORMAT,
-        "generated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "fleet": fleet.name,
-        "wagons": entries,
-        "inputs": {"wagons": len(fleet.wagons), "recordings": fleet.recordings, "skipped": [i.as_dict() for i in _unique(issues)]},
-    }
-    write_text_atomically(out / "wagons.json", json.dumps(document, indent=1, allow_nan=False) + "\n")
+    try:
+        for name in ("events.jsonl", "wagons.json"):
+            make_room(out / name, out)  # a folder there (JUDGED is the judge's own) would refuse the rename for good
+        write_text_atomically(out / "events.jsonl", "".join(encode_event(j.wagon_id, seq, event) + "\n" for j in judged for seq, event in j.events))
+        for wagon, j in zip(fleet.wagons, judged, strict=True):
+            series_path = out / "series" / f"wagon={wagon.wagon_id}" / SERIES_FILE
+            make_room(series_path, out)
+            write_atomically(series_path, lambda temporary, series=j.series: write_parquet(series, temporary))
+            entries.append(_wagon_entry(wagon, j, relative.get(wagon.wagon_id)))
+        entries.sort(key=lambda e: (-e["attention"], e["wagon"]))
+        issues = (*fleet.issues, *(i for j in judged for i in j.issues))
+        document = {
+            "format": JUDGED_FORMAT,
+            "generated_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "fleet": fleet.name,
+            "wagons": entries,
+            "inputs": {"wagons": len(fleet.wagons), "recordings": fleet.recordings, "skipped": [i.as_dict() for i in _unique(issues)]},
+        }
+        write_text_atomically(out / "wagons.json", json.dumps(document, indent=1, allow_nan=False) + "\n")
+    except OSError as exc:
+        raise JudgeError(f"{shown(out)}: JUDGED cannot be written ({exc.strerror or exc})") from None
     states: dict[str, int] = {}
     for e in entries:
         states[e["state"]] = states.get(e["state"], 0) + 1
@@ -256,15 +279,16 @@ def judge_fleet(
 
 
 def _judge_all(fleet: Fleet, windows_dir: str | Path, client: Any, progress: Callable[[int, int], None] | None) -> list[WagonJudged]:
-    if client is None:  # light work (a few hundred microseconds per window): in this process
-        out = []
-        for i, wagon in enumerate(fleet.wagons):
-            out.append(judge_wagon(wagon, windows_dir))
+    """Every wagon judged, in the fleet's order: here (light work, a few hundred microseconds per
+    window), or on the client's cluster."""
+    runner: Runner = InProcess() if client is None else DaskRunner(client)
+    done: dict[str, WagonJudged] = {}
+    with contextlib.closing(runner.map(functools.partial(judge_wagon, out_dir=str(windows_dir)), fleet.wagons)) as results:
+        for judged in results:
+            done[judged.wagon_id] = judged
             if progress is not None:
-                progress(i + 1, len(fleet.wagons))
-        return out
-    futures = client.map(judge_wagon, list(fleet.wagons), [str(windows_dir)] * len(fleet.wagons), pure=False)
-    return list(client.gather(futures))
+                progress(len(done), len(fleet.wagons))
+    return [done[w.wagon_id] for w in fleet.wagons]
 
 
 def _unique(issues: Sequence[Issue]) -> list[Issue]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import enum
 import json
 import math
+import os
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -19,12 +20,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.messages import TIME_S_MAX, TIME_S_MIN, EventMessage, SchemaError, decode, printable
-
+from bogiemon.daemon.messages import MAX_PAYLOAD_BYTES, TIME_S_MAX, TIME_S_MIN, EventMessage, SchemaError, decode, printable
+from bogiemon.drivers.files import FileKind, open_untrusted, read_untrusted
+from bogiemon.fleet.paths import one_line, open_parquet, parquet_kind, shown
 
 
 class WagonState(enum.StrEnum):
@@ -44,6 +45,17 @@ EVENT_KINDS = tuple(k.value for k in EventKind)
 # read only for such an id, so a hostile id in wagons.json never names a path outside series/.
 WAGON_ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9._-]{0,63}$")
 SERIES_COLUMNS = ("time_s", "judged", "score", "trend", "warning", "alarm", "trend_warning", "trend_alarm", "mode")
+# The bounds of what a JUDGED folder holds: a fleet of 100 000 wagons' wagons.json is about
+# 200 MB; a year of a wagon's windows every 10 s is 3.2 M rows of series, about 100 MB.
+WAGONS_JSON = FileKind(
+    name="wagons.json", description="wagons.json is the JSON `bogiemon fleet judge` writes", max_bytes=1 << 30,
+    too_large="wagons.json is a fleet's states: is this the right folder?",
+)  # fmt: skip
+EVENTS_JSONL = FileKind(
+    name="events.jsonl", description="events.jsonl holds one event a line, as `bogiemon fleet judge` writes it", max_bytes=8 << 30,
+    too_large="split the fleet's judging", max_line_bytes=MAX_PAYLOAD_BYTES,
+)  # fmt: skip
+SERIES_FILE = parquet_kind("series", "a series is the Parquet file `bogiemon fleet judge` writes per wagon", 4 << 30)
 
 
 
@@ -164,12 +176,12 @@ def _strings(value: list[Any], file: Path, at: str) -> list[str]:
 
 def read_wagons_json(path: Path) -> dict[str, Any]:
     """wagons.json, checked against the contract: ReportError (one line, naming the field) if not."""
+    if not os.path.lexists(path):
+        raise ReportError(f"{shown(path)}: missing (a JUDGED folder is what `bogiemon fleet judge` writes)")
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ReportError(f"{path}: missing (a JUDGED folder is what `bogiemon fleet judge` writes)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ReportError(f"{path}: cannot be read ({printable(str(exc))})") from None
+        text = read_untrusted(path, WAGONS_JSON, ReportError).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ReportError(f"{shown(path)}: cannot be read (not UTF-8 text: byte {exc.start})") from None
     try:
         doc = json.loads(text, parse_constant=_not_a_number)
     except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError
@@ -217,20 +229,17 @@ def _not_a_number(name: str) -> None:
 def read_events(path: Path) -> dict[str, list[EventMessage]]:
     """events.jsonl by wagon, each wagon's in time order; ReportError (naming the line) for a bad line."""
     by_wagon: dict[str, list[EventMessage]] = {}
-    try:
-        with path.open("rb") as f:
-            for number, raw in enumerate(f, start=1):
-                if not raw.strip():
-                    continue
-                try:
-                    message = decode(EventMessage, raw.rstrip(b"\r\n"))
-                except SchemaError as exc:
-                    raise ReportError(f"{path}: line {number}: {exc}") from None
-                by_wagon.setdefault(message.wagon_id, []).append(message)
-    except FileNotFoundError:
-        raise ReportError(f"{path}: missing (a JUDGED folder is what `bogiemon fleet judge` writes)") from None
-    except OSError as exc:
-        raise ReportError(f"{path}: cannot be read ({printable(str(exc))})") from None
+    if not os.path.lexists(path):
+        raise ReportError(f"{shown(path)}: missing (a JUDGED folder is what `bogiemon fleet judge` writes)")
+    with open_untrusted(path, EVENTS_JSONL, ReportError) as f:
+        for number, raw in f.lines():
+            if raw is None or not raw.strip():
+                continue
+            try:
+                message = decode(EventMessage, raw)
+            except SchemaError as exc:
+                raise ReportError(f"{shown(path)}: line {number}: {exc}") from None
+            by_wagon.setdefault(message.wagon_id, []).append(message)
     for events in by_wagon.values():
         events.sort(key=lambda m: (m.time_s, m.seq))
     return by_wagon
@@ -238,14 +247,16 @@ def read_events(path: Path) -> dict[str, list[EventMessage]]:
 
 def read_series(path: Path) -> Series:
     """A wagon's series file; ReportError (naming the file and the column) when it is not per contract."""
-    try:
-        names = pq.read_schema(path).names
+    f, parquet = open_parquet(path, SERIES_FILE, ReportError)
+    with f:
+        names = parquet.schema_arrow.names
         for name in SERIES_COLUMNS:
             if name not in names:
-                raise ReportError(f"{path}: missing column '{name}'")
-        table = pq.read_table(path, columns=list(SERIES_COLUMNS))  # not the strings the page does not draw
-    except (OSError, pa.ArrowException) as exc:
-        raise ReportError(f"{path}: not a readable Parquet file ({printable(str(exc))})") from None
+                raise ReportError(f"{shown(path)}: missing column '{name}'")
+        try:
+            table = parquet.read(columns=list(SERIES_COLUMNS), use_threads=False)  # not the strings the page does not draw
+        except (OSError, pa.ArrowException) as exc:
+            raise ReportError(f"{shown(path)}: not a readable Parquet file ({one_line(exc)})") from None
 
     def floats(name: str) -> NDArray[np.float64]:
         try:
@@ -278,7 +289,7 @@ def read_judged(judged_dir: Path | str) -> Judged:
     """A JUDGED folder, checked: wagons.json, events.jsonl and each wagon's series."""
     root = Path(judged_dir)
     if not root.is_dir():
-        raise ReportError(f"{root}: no such folder (a JUDGED folder is what `bogiemon fleet judge` writes)")
+        raise ReportError(f"{shown(root)}: no such folder (a JUDGED folder is what `bogiemon fleet judge` writes)")
     doc = read_wagons_json(root / "wagons.json")
     events = read_events(root / "events.jsonl")
     pages = []
@@ -289,8 +300,8 @@ def read_judged(judged_dir: Path | str) -> Judged:
             note = "its id is no folder name the back office writes: no series is read for it"
         else:
             path = root / "series" / f"wagon={wagon}" / "part-0.parquet"
-            if path.is_file():
-                series = read_series(path)
+            if os.path.lexists(path):
+                series = read_series(path)  # a folder or a FIFO there is refused, naming it
             else:
                 note = "no series file"
         pages.append(WagonPage(entry=entry, series=series, series_note=note, events=events.get(wagon, [])))

@@ -9,6 +9,7 @@ that does not parse is a FleetError, since it describes the whole fleet.
 from __future__ import annotations
 
 import datetime as dt
+import os
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -16,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
+from bogiemon.drivers.files import FileKind, read_untrusted
 from bogiemon.drivers.recording import is_sample_recording_name
+from bogiemon.fleet.paths import FIRST_DAY, inside, is_utf8, last_day, one_line, shown
 
 FLEET_FILE = "fleet.toml"
 WAGON_CONFIG = "bogiemon.toml"
@@ -26,6 +29,11 @@ WAGON_ID = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
 DAY = re.compile(r"^\d{4}-\d{2}-\d{2}$")
 CAN_LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc")
 IGNORED_SUFFIXES = (".json",)  # the simulator's sidecars and truth: what was simulated, not recordings
+FLEET_FILE_KIND = FileKind(
+    name="fleet file", description="fleet.toml is a page of TOML ([fleet] and [wagons.\"<id>\"])", max_bytes=1 << 20,
+    too_large="fleet.toml is a page of TOML: is this the right file?",
+)  # fmt: skip
+NOT_UTF8 = "a name that is not UTF-8 (the windows, events and report hold UTF-8 only): rename it; skipped"
 
 
 class FleetError(ValueError):
@@ -34,10 +42,15 @@ class FleetError(ValueError):
 
 @dataclass(frozen=True)
 class Issue:
-    """Something in the tree that is skipped: what and why, in one line."""
+    """Something in the tree that is skipped: what and why, in one line, printable (a name that is
+    not UTF-8 shows its bytes escaped: the issue goes to JSON, Parquet and HTML)."""
 
     path: str
     reason: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", shown(self.path))
+        object.__setattr__(self, "reason", one_line(self.reason, 600))
 
     def as_dict(self) -> dict[str, str]:
         return {"path": self.path, "reason": self.reason}
@@ -98,8 +111,11 @@ class Fleet:
         for w in self.wagons:
             if w.wagon_id == wagon_id:
                 return w
+        why = next((i for i in self.issues if Path(i.path).is_relative_to(self.root / wagon_id)), None)
+        if why is not None:
+            raise FleetError(f"{why.path}: {why.reason}")
         known = ", ".join(w.wagon_id for w in self.wagons[:10]) or "none"
-        raise FleetError(f"{self.root}: no usable wagon '{wagon_id}' (usable wagons: {known})")
+        raise FleetError(f"{shown(self.root)}: no usable wagon '{shown(wagon_id, 80)}' (usable wagons: {known})")
 
     @property
     def recordings(self) -> int:
@@ -123,12 +139,17 @@ def day_start_s(date: str) -> float:
 
 def _read_fleet_file(root: Path) -> dict[str, Any]:
     path = root / FLEET_FILE
-    if not path.exists():
+    if not os.path.lexists(path):
         return {}
+    if not inside(root, path):
+        raise FleetError(f"{shown(path)}: leads out of the fleet folder ('..' and symlinks resolved); keep fleet.toml in FLEET")
+    raw = read_untrusted(path, FLEET_FILE_KIND, FleetError)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise FleetError(f"{path}: cannot be read as TOML: {exc}") from None
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise FleetError(f"{path}: cannot be read as TOML: not UTF-8 text (byte {exc.start})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
+        raise FleetError(f"{path}: cannot be read as TOML: {one_line(exc)}") from None
     for key in data:
         if key not in ("fleet", "wagons"):
             raise FleetError(f"{path}: unknown table [{key}]; expected [fleet] and [wagons.\"<id>\"]")
@@ -145,11 +166,17 @@ def _read_fleet_file(root: Path) -> dict[str, Any]:
     return data
 
 
-def scan_fleet(root: str | Path) -> Fleet:
-    """The fleet under root; FleetError only when root or its fleet.toml cannot be used."""
-    root = Path(root).resolve()
+def scan_fleet(root: str | Path, today: dt.date | None = None) -> Fleet:
+    """The fleet under root; FleetError only when root or its fleet.toml cannot be used. A day
+    after the day after `today` (default: today, UTC) is skipped as no clock's reading yet."""
+    if not is_utf8(root):
+        raise FleetError(f"{shown(root)}: the fleet folder's name is not UTF-8 (the windows, events and report hold UTF-8 only); rename it")
+    try:
+        root = Path(root).resolve()
+    except (OSError, RuntimeError) as exc:
+        raise FleetError(f"{shown(root)}: cannot be resolved ({one_line(exc)})") from None
     if not root.is_dir():
-        raise FleetError(f"{root}: no such fleet folder (expected FLEET/<wagon-id>/<YYYY-MM-DD>/ recordings)")
+        raise FleetError(f"{shown(root)}: no such fleet folder (expected FLEET/<wagon-id>/<YYYY-MM-DD>/ recordings)")
     data = _read_fleet_file(root)
     meta, listed = data.get("fleet", {}), data.get("wagons", {})
     default_type = str(meta.get("default_type", DEFAULT_TYPE))
@@ -157,34 +184,71 @@ def scan_fleet(root: str | Path) -> Fleet:
     ids: list[str] = []
     # A folder holding the configs fleet.toml names (e.g. FLEET/configs/) is no wagon.
     config_homes = {Path(e["config"]).parts[0] for e in listed.values() if "config" in e and len(Path(e["config"]).parts) > 1}
-    for entry in sorted(root.iterdir()):
+    entries = _entries(root, issues)
+    if entries is None:
+        raise FleetError(f"{issues[-1].path}: {issues[-1].reason}")
+    for entry in entries:
         if entry.name.startswith(".") or entry.name == FLEET_FILE or entry.name in config_homes:
             continue
-        if not entry.is_dir():
+        if not is_utf8(entry.name):
+            issues.append(Issue(str(entry), NOT_UTF8))
+        elif not entry.is_dir():
             if not entry.name.lower().endswith(IGNORED_SUFFIXES):  # e.g. a simulated fleet's truth.json
                 issues.append(Issue(str(entry), "not a wagon folder (a file at the top of the fleet)"))
         elif not WAGON_ID.match(entry.name):
             issues.append(Issue(str(entry), "not a wagon id (letters, digits, '-', '_', '.'; at most 64 characters)"))
+        elif not inside(root, entry):
+            issues.append(Issue(str(entry), "leads out of the fleet folder ('..' and symlinks resolved); wagon skipped"))
         else:
             ids.append(entry.name)
     for wagon_id in listed:
-        if wagon_id not in ids:
+        if wagon_id not in ids and not any(Path(i.path).name == wagon_id for i in issues):
             issues.append(Issue(str(root / wagon_id), f"listed in {FLEET_FILE} but has no folder of recordings"))
     wagons = []
     for wagon_id in ids:
         entry = listed.get(wagon_id, {})
-        wagon = _scan_wagon(root, wagon_id, str(entry.get("type", default_type)), entry.get("config"), issues)
+        wagon = _scan_wagon(root, wagon_id, str(entry.get("type", default_type)), entry.get("config"), last_day(today), issues)
         if wagon is not None:
             wagons.append(wagon)
     return Fleet(root, str(meta.get("name", root.name)), tuple(wagons), tuple(issues))
 
 
-def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | None, issues: list[Issue]) -> Wagon | None:
+def _entries(folder: Path, issues: list[Issue]) -> list[Path] | None:
+    """A folder's entries in name order; None (and an issue) when it cannot be listed."""
+    try:
+        return sorted(folder.iterdir())
+    except OSError as exc:
+        issues.append(Issue(str(folder), f"cannot be listed ({exc.strerror or exc}); skipped"))
+        return None
+
+
+def _config_path(root: Path, folder: Path, config_name: str | None) -> Path | str:
+    """The wagon's config file, or why it cannot be used (it must lie inside the fleet)."""
+    if config_name is None:
+        path = folder / WAGON_CONFIG
+    elif not config_name or "\0" in config_name or Path(config_name).is_absolute():
+        return f"{FLEET_FILE} names config = {shown(repr(config_name), 80)}: expected a path relative to the fleet folder; wagon skipped"
+    else:
+        path = root / config_name
+    if not inside(root, path):
+        return f"its config {shown(path)} leads out of the fleet folder ('..' and symlinks resolved); wagon skipped"
+    return path
+
+
+def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | None, newest: dt.date, issues: list[Issue]) -> Wagon | None:
     folder = root / wagon_id
-    config_path = root / config_name if config_name else folder / WAGON_CONFIG
+    config_path = _config_path(root, folder, config_name)
+    if isinstance(config_path, str):
+        issues.append(Issue(str(folder), config_path))
+        return None
     calibration = folder / CALIBRATION
-    calibration_path = calibration if calibration.is_file() else None
-    if not config_path.is_file():
+    # A calibration.toml that is there is used or the wagon is skipped: a FIFO or a folder in its
+    # place must not leave the wagon judged as if it had never been commissioned.
+    calibration_path = calibration if os.path.lexists(calibration) else None
+    if calibration_path is not None and not inside(root, calibration_path):
+        issues.append(Issue(str(calibration), "leads out of the fleet folder ('..' and symlinks resolved); wagon skipped"))
+        return None
+    if not os.path.lexists(config_path):
         issues.append(Issue(str(folder), f"no config: expected {config_path} (the wagon's sensor corners and settings); wagon skipped"))
         return None
     try:
@@ -196,26 +260,27 @@ def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | N
         issues.append(Issue(str(config_path), f"config does not validate, wagon skipped: {first}"))
         return None
     days = []
-    for entry in sorted(folder.iterdir()):
+    for entry in _entries(folder, issues) or ():
         if entry.name.startswith(".") or entry in (config_path, calibration):
+            continue
+        if not is_utf8(entry.name):
+            issues.append(Issue(str(entry), NOT_UTF8))
             continue
         if not entry.is_dir():
             if entry.suffix != ".toml":
                 issues.append(Issue(str(entry), "not a day folder (YYYY-MM-DD) nor the wagon's config; skipped"))
             continue
-        if not DAY.match(entry.name) or not _is_date(entry.name):
+        day = _date(entry.name)
+        if day is None:
             issues.append(Issue(str(entry), "a folder whose name is no date (YYYY-MM-DD); skipped"))
             continue
-        files = []
-        for f in sorted(entry.iterdir()):
-            if f.name.startswith("."):
-                continue  # an upload in progress, or the recorder's temporary file
-            if not f.is_file() or recording_kind(f.name) is None:
-                if not f.name.lower().endswith(IGNORED_SUFFIXES):
-                    issues.append(Issue(str(f), "not a recording (.csv, .csv.gz or a CAN log: .asc, .blf, .log, .trc); skipped"))
-                continue
-            st = f.stat()
-            files.append(InputFile(f, st.st_size, st.st_mtime_ns))
+        if not FIRST_DAY <= day <= newest:
+            issues.append(Issue(str(entry), f"a day outside {FIRST_DAY} .. {newest} (no gateway's clock reads it now); skipped"))
+            continue
+        if not inside(root, entry):
+            issues.append(Issue(str(entry), "leads out of the fleet folder ('..' and symlinks resolved); skipped"))
+            continue
+        files = _recordings(root, entry, issues)
         if not files:
             issues.append(Issue(str(entry), "an empty day: no recordings"))
             continue
@@ -225,9 +290,36 @@ def _scan_wagon(root: Path, wagon_id: str, wagon_type: str, config_name: str | N
     return Wagon(wagon_id, wagon_type, folder, config_path, calibration_path, config, tuple(days))
 
 
-def _is_date(text: str) -> bool:
+def _recordings(root: Path, day: Path, issues: list[Issue]) -> list[InputFile]:
+    """A day folder's recordings, in name order; what is no recording is an issue."""
+    files = []
+    for f in _entries(day, issues) or ():
+        if f.name.startswith("."):
+            continue  # an upload in progress, or the recorder's temporary file
+        if not is_utf8(f.name):
+            issues.append(Issue(str(f), NOT_UTF8))
+            continue
+        if not f.is_file() or recording_kind(f.name) is None:
+            if not f.name.lower().endswith(IGNORED_SUFFIXES):
+                issues.append(Issue(str(f), "not a recording (.csv, .csv.gz or a CAN log: .asc, .blf, .log, .trc); skipped"))
+            continue
+        if not inside(root, f):
+            issues.append(Issue(str(f), "leads out of the fleet folder ('..' and symlinks resolved); skipped"))
+            continue
+        try:
+            st = f.stat()
+        except OSError as exc:
+            issues.append(Issue(str(f), f"cannot be looked at ({exc.strerror or exc}); skipped"))
+            continue
+        files.append(InputFile(f, st.st_size, st.st_mtime_ns))
+    return files
+
+
+def _date(text: str) -> dt.date | None:
+    """The date a day folder's name is, or None."""
+    if not DAY.match(text):
+        return None
     try:
-        dt.datetime.strptime(text, "%Y-%m-%d")
+        return dt.date.fromisoformat(text)
     except ValueError:
-        return False
-    return True
+        return None

@@ -19,6 +19,7 @@ from typing import Any
 from bogiemon.daemon.messages import EventMessage
 from bogiemon.drivers.atomic import write_bytes_atomically
 from bogiemon.fleet import svg
+from bogiemon.fleet.paths import output_file, shown
 from bogiemon.fleet.judged_files import EVENT_KINDS, STATES, Judged, ReportError, WagonPage, read_judged
 from bogiemon.fleet.plot import (
     ALARM_COLOUR, EVENT_COLOURS, EVENT_TEXT_COLOURS, MAX_IDLE_S, SCORE_COLOUR, STATE_COLOURS, TREND_COLOUR, WARNING_COLOUR, wagon_plot,
@@ -297,14 +298,15 @@ def render(judged: Judged, title: str | None = None, written_utc: datetime | Non
 
 def write_report(judged_dir: Path | str, out_path: Path | str, title: str | None = None) -> ReportSummary:
     """Write the fleet's page for a JUDGED folder to out_path (atomically); ReportError for bad input."""
+    out = output_file(out_path, ReportError, "the report", {"JUDGED": judged_dir})
     judged = read_judged(judged_dir)
     page, points = render(judged, title)
-    out = Path(out_path)
-    data = page.encode("utf-8")
+    # A lone surrogate a hostile JSON string escaped (\\udcff) has no UTF-8: it shows as '?'.
+    data = page.encode("utf-8", "replace")
     try:
         write_bytes_atomically(out, data)
     except OSError as exc:
-        raise ReportError(f"{out}: cannot be written ({exc.strerror or exc})") from None
+        raise ReportError(f"{shown(out)}: cannot be written ({exc.strerror or exc})") from None
     counts = {s: sum(1 for p in judged.wagons if p.entry["state"] == s) for s in STATES}
     return ReportSummary(
         path=out,

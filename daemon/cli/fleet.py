@@ -101,15 +101,17 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 def run_analyze(args: argparse.Namespace) -> int:
     from bogiemon.fleet.analyze import analyze_fleet
+    from bogiemon.fleet.paths import shown
 
     summary = analyze_fleet(args.root, args.output, scheduler=args.scheduler, n_workers=args.workers,
                             progress=_progress("analysing wagon-days"), redo=args.redo)  # fmt: skip
     hours = summary.recorded_s / 3600
     print(
-        f"{summary.out_dir}: {summary.wagons} wagons, {summary.partitions} wagon-days ({summary.analysed} analysed, "
+        f"{shown(summary.out_dir)}: {summary.wagons} wagons, {summary.partitions} wagon-days ({summary.analysed} analysed, "
         f"{summary.reused} up to date), {summary.windows} windows; {hours:.1f} h of recording in {summary.elapsed_s:.1f} s"
         + (f" on {summary.workers} workers" if summary.workers else "")
     )
+    _print_issues(summary.repaired, "partition(s) damaged or replaced, analysed again")
     _print_issues(summary.issues)
     return 0
 
@@ -118,6 +120,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from bogiemon.daemon.calibrate import CalibrationError
     from bogiemon.fleet.calibrate import calibrate_wagon
     from bogiemon.fleet.layout import FleetError, scan_fleet
+    from bogiemon.fleet.paths import shown
 
     if bool(args.wagon) == bool(args.uncommissioned):
         raise FleetError("name one WAGON, or pass --uncommissioned for every wagon without a calibration")
@@ -133,32 +136,34 @@ def run_calibrate(args: argparse.Namespace) -> int:
             print(f"{wagon_id}: not calibrated: {exc}", file=sys.stderr)
             continue
         loads = ", ".join(f"{c.load} ({c.n_judged} windows)" for c in done.result.loads)
-        print(f"{wagon_id}: {done.path} from {', '.join(done.days)}: {loads}")
+        print(f"{wagon_id}: {shown(done.path)} from {', '.join(done.days)}: {loads}")
     return 1 if failed else 0
 
 
 def run_judge(args: argparse.Namespace) -> int:
     from bogiemon.fleet.judge import judge_fleet
+    from bogiemon.fleet.paths import shown
 
     summary = judge_fleet(args.windows, args.output, fleet_root=args.fleet, progress=_progress("judging wagons"))
     states = ", ".join(f"{n} {state}" for state, n in sorted(summary.states.items()))
-    print(f"{summary.out_dir}: {summary.wagons} wagons ({states}), {summary.events} events, in {summary.elapsed_s:.1f} s")
+    print(f"{shown(summary.out_dir)}: {summary.wagons} wagons ({states}), {summary.events} events, in {summary.elapsed_s:.1f} s")
     _print_issues(summary.issues)
     return 0
 
 
 def run_report(args: argparse.Namespace) -> int:
+    from bogiemon.fleet.paths import shown
     from bogiemon.fleet.report import write_report
 
     done = write_report(args.judged, args.output, title=args.title)
-    print(f"{done.path}: the fleet report ({done.wagons} wagons, {done.bytes / 1024:.0f} KiB); open it in a browser")
+    print(f"{shown(done.path)}: the fleet report ({done.wagons} wagons, {done.bytes / 1024:.0f} KiB); open it in a browser")
     return 0
 
 
-def _print_issues(issues) -> None:  # type: ignore[no-untyped-def]
+def _print_issues(issues, what: str = "input(s) skipped") -> None:  # type: ignore[no-untyped-def]
     if not issues:
         return
-    print(f"{len(issues)} input(s) skipped:", file=sys.stderr)
+    print(f"{len(issues)} {what}:", file=sys.stderr)
     for issue in issues[:20]:
         print(f"  {issue.path}: {issue.reason}", file=sys.stderr)
     if len(issues) > 20:

@@ -200,15 +200,18 @@ class RunSpec:
     onset_s: float = 0.0  # the fault appears this far into the run (0: healthy run)
     damage: str | None = None  # role "sensor": what is wrong with a sensor (SENSOR_DAMAGE)
     # A commissioning run (an evaluation wagon's, or the first runs of a training wagon's, which
-    # the model fitting commissions it on): its conditions follow the README's instruction
-    # (draw_conditions), not the random draw of the running that follows.
+    # the model fitting commissions it on).
     commissioning: bool = False
+    # A commissioning run's conditions follow the README's old instruction (every track quality,
+    # both directions, both ends of the speed range: draw_conditions); not designed, they are what
+    # the wagon happened to run (a random draw like any run's), as a keeper commissions.
+    designed: bool = True
 
     @property
     def name(self) -> str:
         where = self.corner.value if self.corner else "-"
         damage = f"|{self.damage}" if self.damage else ""
-        planned = "|commissioning" if self.commissioning else ""
+        planned = ("|commissioning" if self.designed else "|commissioning-drawn") if self.commissioning else ""
         return f"{self.role}|{self.wagon}|{self.load}|{self.key}|{self.severity:g}|{where}|{self.number}{damage}{planned}"
 
     @property
@@ -244,7 +247,7 @@ def draw_conditions(run: RunSpec) -> Conditions:
     track = TRACKS[int(rng.integers(len(TRACKS)))]
     n_points = int(math.ceil(run.duration_s / SPEED_POINT_EVERY_S)) + 1
     speeds = [float(rng.uniform(SPEED_MIN_KMH, SPEED_MAX_KMH))]
-    if run.commissioning:
+    if run.commissioning and run.designed:
         track = TRACKS[run.number % len(TRACKS)]
         quarter = (SPEED_MAX_KMH - SPEED_MIN_KMH) / 4.0
         speeds = [SPEED_MAX_KMH - quarter * float(rng.uniform()) if (run.number // 2) % 2 else SPEED_MIN_KMH + quarter * float(rng.uniform())]
@@ -255,7 +258,7 @@ def draw_conditions(run: RunSpec) -> Conditions:
         v = 2 * SPEED_MAX_KMH - v if v > SPEED_MAX_KMH else v
         speeds.append(float(np.clip(v, SPEED_MIN_KMH, SPEED_MAX_KMH)))
     points = tuple((k * SPEED_POINT_EVERY_S, round(v, 3)) for k, v in enumerate(speeds))
-    reversed_ = bool(rng.integers(2)) if not run.commissioning else bool(run.number % 2)
+    reversed_ = bool(run.number % 2) if run.commissioning and run.designed else bool(rng.integers(2))
     if run.role == "standing":
         points = ((0.0, 0.0),)
     elif run.role == "stops":
@@ -345,6 +348,9 @@ class EvaluationPlan:
     stop_s: float = 600.0
     standing_runs: int = 0  # per wagon and load: the wagon stands the whole run
     standing_s: float = 300.0
+    # Commissioning on a designed grid (every track quality, both ends of the speeds: the README's
+    # old instruction), or on a random draw of what the wagon runs, as a keeper commissions.
+    designed_commissioning: bool = True
 
     @classmethod
     def default(cls) -> EvaluationPlan:
@@ -376,7 +382,8 @@ class EvaluationPlan:
         for w in range(self.n_wagons):
             for load in self.loads:
                 out += [
-                    RunSpec("calibration", w, load, HEALTHY, 1.0, None, r, self.calibration_s, commissioning=True) for r in range(self.calibration_runs)
+                    RunSpec("calibration", w, load, HEALTHY, 1.0, None, r, self.calibration_s, commissioning=True, designed=self.designed_commissioning)
+                    for r in range(self.calibration_runs)
                 ]
                 out += [RunSpec("healthy", w, load, HEALTHY, 1.0, None, r, self.healthy_s) for r in range(self.healthy_runs)]
         out += self._fault_runs("fault", self.n_wagons, self.fault_runs, self.lead_in_s, self.lead_in_s + self.fault_s, self.fault_cases)
@@ -395,7 +402,10 @@ class EvaluationPlan:
         for w in range(self.n_training_wagons):
             for load in self.loads:
                 out += [
-                    RunSpec("train-healthy", w, load, HEALTHY, 1.0, None, r, self.training_healthy_s, commissioning=r < self.calibration_runs)
+                    RunSpec(
+                        "train-healthy", w, load, HEALTHY, 1.0, None, r, self.training_healthy_s,
+                        commissioning=r < self.calibration_runs, designed=self.designed_commissioning,
+                    )  # fmt: skip
                     for r in range(self.training_healthy_runs)
                 ]
         out += self._fault_runs(

@@ -141,6 +141,8 @@ class SequenceResult:
     confirmed_before_onset: bool
     trigger: str | None
     diagnosis: Mapping[str, Any] | None
+    judged_after_onset: int = 0  # windows judged that end after the onset
+    events_after_onset: int = 0  # events of any kind after the onset (0 with none judged: silent)
 
 
 def sequences(data: EvaluationData, wagon: int) -> list[list[RunWindows]]:
@@ -195,7 +197,10 @@ def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -
     offset = 0.0  # running time at the start of each run, from the sequence's start
     first_after: tuple[float, Outcome] | None = None
     before = False
+    judged_after = events_after = 0
     for r, j in zip(group, judged, strict=True):
+        judged_after += sum(ld is not None and offset + w.end_s > onset for ld, w in zip(j.loads, r.windows, strict=True))
+        events_after += sum(offset + e.time_s > onset for e in j.events)
         for e in j.events:
             if e.kind != "CONFIRMED":
                 continue
@@ -213,6 +218,8 @@ def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -
         confirmed_before_onset=before,
         trigger=first_after[1].details.get("trigger") if first_after else None,
         diagnosis=first_after[1].details.get("diagnosis") if first_after else None,
+        judged_after_onset=judged_after,
+        events_after_onset=events_after,
     )
 
 

@@ -54,6 +54,7 @@ class CellScore:
     unknown_corner: int
     # The alarm ratios of the windows wholly after the onset (>= 1: alarm level), every run.
     ratios: tuple[float, ...] = field(repr=False)
+    silent: int = 0  # runs with not one window judged after the onset and no event: the monitor fell silent
 
     @property
     def median_ratio(self) -> float:
@@ -81,6 +82,7 @@ class SequenceCell:
     times_s: tuple[float, ...]
     corner_right: int
     kind_right: int
+    silent: int = 0  # sequences with not one window judged after the onset and no event
 
     @property
     def rate(self) -> float:
@@ -146,6 +148,9 @@ class MethodScore:
     healthy_problems: dict[str, int] = field(default_factory=dict)  # "a1:flat" -> healthy runs naming it
     quiet: tuple[QuietScore, ...] = ()
     load_all_windows: dict[str, int] = field(default_factory=dict)  # true load -> every window, judged or not
+    healthy_windows: int = 0
+    healthy_judged_windows: int = 0
+    healthy_unjudged_runs: int = 0  # healthy runs with not one window judged
 
     def quiet_role(self, role: str) -> QuietScore | None:
         return next((q for q in self.quiet if q.role == role), None)
@@ -190,6 +195,12 @@ def _faulty_ratios(r: RunResult, window_s: float) -> list[float]:
     return [x for x, end in zip(r.ratios, r.window_ends_s, strict=True) if x is not None and end - window_s >= r.run.onset_s - 1e-9]
 
 
+def _silent(r: RunResult) -> bool:
+    """A fault run with not one window judged after its onset and no event: nothing anyone sees."""
+    judged = any(ld is not None and end > r.run.onset_s for ld, end in zip(r.loads, r.window_ends_s, strict=True))
+    return not judged and r.suspension_events == 0 and not r.sensor_problems
+
+
 def named_corners(diagnosis: Mapping[str, Any] | None) -> tuple[str, ...]:
     """The corners a diagnosis names: its pair, one corner (events written before the pair), or none."""
     d = diagnosis or {}
@@ -218,6 +229,7 @@ def _sequence_cells(results: Sequence[SequenceResult]) -> list[SequenceCell]:
                 times_s=tuple(float(r.confirmed_after_s) for r in found),  # type: ignore[arg-type]
                 corner_right=sum(c in named_corners(r.diagnosis) for r, c in zip(found, corner, strict=True)),
                 kind_right=sum((r.diagnosis or {}).get("kind") == r.first.kind for r in found),
+                silent=sum(r.judged_after_onset == 0 and r.events_after_onset == 0 for r in seqs),
             )
         )
     return out
@@ -282,6 +294,7 @@ def score_method(
                 kind_right=sum(d.get("kind") == r.run.kind for r, d in diagnoses),
                 unknown_corner=sum(not named_corners(d) for _, d in diagnoses),
                 ratios=tuple(ratios),
+                silent=sum(_silent(r) for r in runs),
             )
         )
     faults = [r for rs in cells.values() for r in rs]
@@ -309,6 +322,9 @@ def score_method(
         healthy_problems=_named(healthy),
         quiet=tuple(_quiet_score(role, runs) for role, runs in sorted(quiet.items())),
         load_all_windows=dict(sorted(load_all.items())),
+        healthy_windows=sum(len(r.loads) for r in healthy),
+        healthy_judged_windows=sum(ld is not None for r in healthy for ld in r.loads),
+        healthy_unjudged_runs=sum(all(ld is None for ld in r.loads) for r in healthy),
     )
 
 

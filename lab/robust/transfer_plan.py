@@ -28,6 +28,7 @@ from bogiemon.lab.robust.score import QUIET_ROLES, MethodScore, score_method
 Progress = Callable[[float], None]
 
 MODELS = ("a", "b")
+COMMISSIONING_RUNS = 10  # per load: what the keeper's commissioning records, 10 min each
 FAULT_HORIZON_S = 600.0  # "confirmed within 10 min of running" with a broken spring
 TREND_HORIZON_S = 3600.0  # "within an hour of running" for the smaller faults
 NOISY = "hiss a2"  # the noisy sensor of the targets (lab/robust/fleet.py SENSOR_DAMAGE)
@@ -56,11 +57,13 @@ def transfer_plan(model: str, size: str = "default") -> EvaluationPlan:
     common: dict[str, Any] = dict(
         model=model, lead_in_s=150.0, fault_s=FAULT_HORIZON_S, fault_cases=BROKEN_FULL + BROKEN_TARE_OUTER,
         trend_cases=SPRINGS_50 + SPRINGS_200 + FRICTION_50 + FRICTION_150, sensor_damages=(NOISY,),
+        # As a keeper commissions (issue 26): ten runs per load of what the wagon happened to run.
+        calibration_runs=COMMISSIONING_RUNS, designed_commissioning=False,
     )  # fmt: skip
     sizes: dict[str, dict[str, Any]] = {
         # 100 h of healthy test running per model across both loads: the issue's figure.
         "full": dict(
-            n_wagons=10, n_training_wagons=8, calibration_runs=12, calibration_s=600.0, healthy_runs=30, healthy_s=600.0,
+            n_wagons=10, n_training_wagons=8, calibration_s=600.0, healthy_runs=30, healthy_s=600.0,
             fault_runs=3, trend_runs=6, trend_run_s=630.0, training_healthy_runs=30, training_healthy_s=600.0,
             training_fault_runs=2, training_fault_s=300.0, sensor_runs=10, sensor_s=600.0, stop_runs=2, stop_s=600.0,
             standing_runs=1, standing_s=600.0,
@@ -69,14 +72,14 @@ def transfer_plan(model: str, size: str = "default") -> EvaluationPlan:
         # 30 h of healthy test running per model, the trend sequences on one diagonal (a corner with
         # a sensor and the one without), 80 min of commissioning per load.
         "default": dict(
-            n_wagons=6, n_training_wagons=5, calibration_runs=8, calibration_s=600.0, healthy_runs=15, healthy_s=600.0,
+            n_wagons=6, n_training_wagons=5, calibration_s=600.0, healthy_runs=15, healthy_s=600.0,
             fault_runs=1, trend_runs=5, trend_run_s=750.0, training_healthy_runs=18, training_healthy_s=600.0,
             training_fault_runs=1, training_fault_s=300.0, sensor_runs=5, sensor_s=600.0, stop_runs=1, stop_s=600.0,
             standing_runs=1, standing_s=300.0, trend_corners=(Corner.LEADING_LEFT, Corner.TRAILING_RIGHT),
         ),
         # A test's: one wagon, short runs, the two corners of one diagonal (the trend on one), few training cells.
         "quick": dict(
-            n_wagons=1, n_training_wagons=2, calibration_runs=3, calibration_s=300.0, healthy_runs=2, healthy_s=300.0,
+            n_wagons=1, n_training_wagons=2, calibration_runs=3, designed_commissioning=True, calibration_s=300.0, healthy_runs=2, healthy_s=300.0,
             fault_runs=1, fault_s=300.0, fault_cases=(("type_a.full.rear_outer", 0.0), ("type_a.tare.rear_outer", 0.0)),
             trend_runs=2, trend_run_s=300.0, trend_cases=FRICTION_50, training_healthy_runs=5, training_healthy_s=300.0,
             training_fault_runs=1, training_fault_s=300.0,

@@ -96,3 +96,17 @@ def test_a_stop_inside_the_window_is_its_quietest_hop_whatever_the_gravity_and_b
 def test_a_record_built_without_hops_carries_no_hop_rms() -> None:
     stats = ChannelStats((9.81,) * 3, (10.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
     assert all(np.isnan(stats.hop_rms_min_mps2)) and all(np.isnan(stats.hop_rms_max_mps2))
+
+
+@settings(max_examples=40, deadline=None)
+@given(hop_n=st.integers(2, 6000), seed=st.integers(0, 2**32 - 1))
+def test_a_hops_sum_and_rms_are_numpys_down_the_columns_bit_for_bit(hop_n: int, seed: int) -> None:
+    # The per-hop statistics run channel-major for speed, in the order numpy reduces down the
+    # columns of the (n, 3) hop: a window's mean and hop RMS keep every bit they had.
+    rng = np.random.default_rng(seed)
+    hop = rng.standard_normal((hop_n, 3)) * [0.1, 3.0, 30.0] + [9.81, -9.81, 0.0]
+    stats = WindowedChannelStats(1, hop_n, FS_HZ).push_hop(hop)
+    assert stats is not None
+    assert stats.mean_mps2 == tuple(hop.sum(axis=0) / hop_n)
+    assert stats.hop_rms_min_mps2 == stats.hop_rms_max_mps2 == tuple(hop.std(axis=0))
+    assert stats.peak_abs_mps2 == tuple(np.abs(hop).max(axis=0))

@@ -109,3 +109,12 @@ def test_inconsistent_sizes_are_rejected(window_n: int, hop_n: int, max_lag_n: i
 def test_a_pair_naming_a_missing_channel_is_rejected() -> None:
     with pytest.raises(ValueError, match="outside"):
         StreamingCrossCorrelator(2, [(0, 2)], 100, 25, 10)
+
+
+def test_the_transform_length_is_scipys_next_fast_len_for_real_input() -> None:
+    from scipy import fft as scipy_fft
+
+    from bogiemon.detection.xcorr import next_fast_len
+
+    lengths = [*range(1, 5000), 10000, 10007, 59049, 65537, 120000, 2**20 + 1, 3 * 5**9 + 1]
+    assert [next_fast_len(n) for n in lengths] == [scipy_fft.next_fast_len(n, real=True) for n in lengths]

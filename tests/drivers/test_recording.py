@@ -391,3 +391,19 @@ def test_a_parquet_row_group_larger_than_the_bound_is_refused_before_it_is_read(
     write_parquet_recording(tmp_path / "r.parquet", t, a)  # one row group of 3000 rows
     with pytest.raises(RecordingError, match=r"r.parquet: row group 0 holds 3000 rows, more than 1000; write it in row groups"):
         open_recording_reader(tmp_path / "r.parquet")
+
+
+def test_the_survey_counts_lines_as_the_byte_by_byte_reference_in_every_short_text() -> None:
+    import itertools
+
+    from bogiemon.drivers.recording import _count_lines
+
+    def reference(data: bytes) -> tuple[int, int]:
+        # A line break is CRLF, CR or LF; a line holding anything starts after one (or at 0).
+        lines = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")
+        return sum(1 for line in lines if line), len(lines) - 1
+
+    for n in range(1, 9):
+        for parts in itertools.product([b"7", b"\n", b"\r"], repeat=n):
+            data = b"".join(parts)
+            assert _count_lines(data) == reference(data), data

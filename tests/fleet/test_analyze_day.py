@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -11,8 +12,8 @@ import pytest
 
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.drivers.recording import read_csv_recording, write_csv_recording
-from bogiemon.fleet import rows
-from bogiemon.fleet.analyze import FORMAT, METADATA_KEY, analyze_day, day_tasks, is_done, read_partition
+from bogiemon.fleet.analyze import FORMAT, analyze_day, day_tasks, is_done
+from bogiemon.fleet.windows_files import DIGEST_KEY, METADATA_KEY, PartitionError, read_partition
 from bogiemon.fleet.layout import scan_fleet
 from tests.fleet import tree
 
@@ -27,11 +28,11 @@ def test_a_recordings_windows_are_those_of_bogiemon_analyze(tmp_path: Path, runs
     placed = tree.place(runs.healthy[0], folder, "2026-11-02", "06:00")
     task = _task(tmp_path / "fleet", tmp_path / "windows")
     analyze_day(task)
-    table, meta = read_partition(task.path)
+    partition = read_partition(task.path, task.midnight_s)
     expected = list(analyze_recording(open_recording(placed, task.config), task.config))
-    assert rows.from_table(table) == expected
+    assert partition.windows() == expected
     recording = read_csv_recording(placed)
-    assert meta["segment_starts"] == [[float(recording.time_s[0]), recording.fs_hz, False]]
+    assert partition.meta.segment_starts == [(float(recording.time_s[0]), recording.fs_hz, False)]
 
 
 def test_overlapping_snapshots_give_each_sample_once(tmp_path: Path, runs: tree.Runs) -> None:
@@ -47,9 +48,10 @@ def test_overlapping_snapshots_give_each_sample_once(tmp_path: Path, runs: tree.
     whole.unlink()
     task = _task(tmp_path / "fleet", tmp_path / "windows")
     result = analyze_day(task)
-    table, meta = read_partition(task.path)
+    partition = read_partition(task.path, task.midnight_s)
+    table = partition.table
     ends = np.array(table.column("end_s").to_pylist())
-    assert meta["covered"] == 1 and result.recordings == 2 and result.skipped == ()
+    assert partition.meta.covered == 1 and result.recordings == 2 and result.skipped == ()
     assert np.all(np.diff(ends) > 0)  # no window twice
     assert result.samples == n  # every sample once
     assert set(table.column("recording").to_pylist()) == {"a_confirmed.csv.gz", "c_later.csv.gz"}
@@ -62,8 +64,8 @@ def test_a_partition_of_an_older_format_is_redone_and_never_read_as_this_one(tmp
     task = _task(tmp_path / "fleet", tmp_path / "windows")
     analyze_day(task)
     table = pq.read_table(task.path)
-    meta = json.loads(table.schema.metadata[METADATA_KEY])
-    pq.write_table(table.replace_schema_metadata({METADATA_KEY: json.dumps({**meta, "format": FORMAT - 1}).encode()}), task.path)
+    older = json.dumps({**json.loads(table.schema.metadata[METADATA_KEY]), "format": FORMAT - 1}).encode()
+    pq.write_table(table.replace_schema_metadata({METADATA_KEY: older, DIGEST_KEY: hashlib.sha256(older).hexdigest().encode()}), task.path)
     assert not is_done(task)
-    with pytest.raises(ValueError, match=f"written in format {FORMAT - 1}, this bogiemon reads {FORMAT}"):
-        read_partition(task.path)
+    with pytest.raises(PartitionError, match=f"written in format {FORMAT - 1}, this bogiemon reads {FORMAT}; run `bogiemon fleet analyze` again$"):
+        read_partition(task.path, task.midnight_s)

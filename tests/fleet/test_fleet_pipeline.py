@@ -4,10 +4,12 @@ calibrate; offline equals onboard, resume, and bad inputs that never stop the re
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import time
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
@@ -17,8 +19,10 @@ from bogiemon.daemon.events import Event
 from bogiemon.drivers.atomic import temporary_name
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.sinks import EventSink
+from bogiemon.daemon.verdict import WindowVerdict
 from bogiemon.fleet.analyze import analyze_fleet, partition_path
 from bogiemon.fleet.calibrate import calibrate_wagon
+from bogiemon.fleet.cluster import InProcess
 from bogiemon.fleet.judge import judge_fleet
 from bogiemon.fleet.layout import scan_fleet
 from tests.fleet import tree
@@ -84,6 +88,45 @@ def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_
     assert wagons["W1"]["state"] == "CONFIRMED" and wagons["W1"]["diagnosis"]["corners"] in (["leading-left", "trailing-right"], [])
     assert wagons["W2"]["state"] == "NORMAL"
     assert next(iter(wagons)) == "W1"  # the most urgent first
+
+
+def _replayed_row(verdict: WindowVerdict) -> tuple[object, ...]:
+    """A window's verdict as the judge's series holds it: end, judged, mode, headline score, any sensor problem."""
+    score = verdict.judgement.headline()[0] if verdict.judgement is not None else math.nan
+    return (verdict.window.end_s, verdict.judgement is not None, verdict.mode.value, score, bool(verdict.health.problems))
+
+
+def _series_rows(series: pa.Table) -> list[tuple[object, ...]]:
+    columns = [series.column(name).to_pylist() for name in ("time_s", "judged", "mode", "score", "sensor_problems")]
+    return [(t, judged, mode, score, bool(problems)) for t, judged, mode, score, problems in zip(*columns, strict=True)]
+
+
+def test_replay_and_fleet_judge_give_the_same_verdict_on_every_window_of_a_day_of_recordings(tmp_path: Path, runs: tree.Runs) -> None:
+    # A day of ten recordings within the hour, each starting as the one before ends, the last one
+    # where the spring breaks: nine boundaries, more than the gaps an hour may hold before the
+    # sensors are faulted for dropouts (health max_gaps_per_hour, 6). Each boundary between
+    # recordings is a new segment, never a dropout of the source: replayed in one call, they are
+    # judged as `fleet judge` judges the day (issue 27, 5).
+    w1 = tree.wagon(tmp_path / "fleet", "W1", commissioned=True)
+    day = "2026-11-02"
+    healthy = [tree.place(runs.healthy[i % 2], w1, day, f"06:{5 * i:02d}") for i in range(9)]
+    files = [*healthy, tree.place(runs.faulty, w1, day, "06:45")]
+    analyze_fleet(tmp_path / "fleet", tmp_path / "windows", runner=InProcess())
+    judge_fleet(tmp_path / "windows", tmp_path / "judged")
+    offline = _series_rows(pq.read_table(tmp_path / "judged" / "series" / "wagon=W1" / "part-0.parquet"))
+    offline_events = [Event.from_dict(json.loads(line)) for line in (tmp_path / "judged" / "events.jsonl").read_text().splitlines()]
+
+    verdicts: list[WindowVerdict] = []
+    sink = _Collect()
+    replay(files, scan_fleet(tmp_path / "fleet").wagon("W1").config, sinks=[sink], observers=[verdicts.append])
+    replayed = [_replayed_row(v) for v in verdicts]
+
+    assert len(replayed) == len(offline) > 10 * 10
+    for window, (a, b) in enumerate(zip(replayed, offline, strict=True)):
+        assert a[:3] == b[:3] and (a[3] == b[3] or math.isnan(a[3]) and math.isnan(b[3])), f"window {window}: replay {a}, fleet judge {b}"
+    assert not any(row[4] for row in replayed), "a window with a sensor problem: a boundary read as a dropout?"
+    assert [_comparable(e) for e in sink.events] == [_comparable(e) for e in offline_events]
+    assert "SENSOR_FAULT" not in [e.kind.value for e in sink.events] and "CONFIRMED" in [e.kind.value for e in sink.events]
 
 
 def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]

@@ -122,3 +122,27 @@ def test_analyze_reports_a_recording_the_config_cannot_use_in_one_line_with_stat
     assert proc.returncode == 2
     assert re.match(f"bogiemon: error: {re.escape(str(bad))}: {message}", proc.stderr), proc.stderr
     assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1
+
+
+# What an analysis does not need: scipy (the core transforms with numpy.fft), pandas (pyarrow's
+# to_numpy imports it for nothing), numpy.ma (np.median's), structlog and asyncio (the daemon's log).
+NOT_FOR_ANALYSIS = ("scipy", "pandas", "numpy.ma", "structlog", "asyncio")
+
+
+@pytest.mark.parametrize("suffix", [".csv.gz", ".parquet"])
+def test_analyze_loads_neither_scipy_nor_pandas_nor_the_daemons_logging(tmp_path: Path, config: Path, suffix: str) -> None:
+    from bogiemon.drivers.recording import write_recording
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / f"run{suffix}"
+    write_recording(path, np.arange(1400) / 100.0, rng.standard_normal((1400, 3)) + 9.81)
+    code = (
+        "import contextlib, io, json, sys\nfrom bogiemon.daemon.cli.main import main\n"
+        f"with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['analyze', {str(path)!r}, '--config', {str(config)!r}]) == 0\n"
+        "print(json.dumps(sorted(sys.modules)))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    modules = json.loads(proc.stdout.splitlines()[-1])
+    assert "bogiemon.detection.indicators" in modules and "pyarrow" in modules
+    assert [m for m in modules if any(m == bad or m.startswith(bad + ".") for bad in NOT_FOR_ANALYSIS)] == []
