@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from baseline import naive_indicators  # noqa: E402
-from timing import Figure, table, time_each, time_interleaved  # noqa: E402
+from timing import Figure, table, time_interleaved  # noqa: E402
 
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings  # noqa: E402
 from bogiemon.drivers.recording import read_recording, write_csv_recording, write_parquet_recording  # noqa: E402

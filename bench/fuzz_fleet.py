@@ -217,7 +217,7 @@ def _date_text(date: str) -> str:
     relative = RELATIVE_DAY.match(date)
     if relative is None:
         return date
-    return (dt.datetime.now(dt.timezone.utc).date() + dt.timedelta(days=int(relative.group(1)))).isoformat()
+    return (dt.datetime.now(dt.UTC).date() + dt.timedelta(days=int(relative.group(1)))).isoformat()
 
 
 def _place(path: Path, spec: dict[str, Any], outside: Path) -> None:

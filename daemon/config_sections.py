@@ -262,7 +262,7 @@ class HealthConfig(Section):
     # Written by commissioning too (daemon/health.py: learn_noise_floor); none: the check is not in force.
     noise_floor_psd: list[Annotated[float, Field(gt=0, le=1e6)]] = Field(default_factory=list)
     noise_floor_ratio: list[Annotated[float, Field(gt=0, le=1e12)]] = Field(default_factory=list)
-    noise_floor_margin: float = Field(4.0, gt=1, le=1e6)
+    noise_floor_margin: float = Field(1.8, gt=1, le=1e6)
     clear_after_windows: int = Field(3, ge=1, le=100_000)
 
     @field_validator("layout_checks")

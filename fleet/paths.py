@@ -26,7 +26,7 @@ from bogiemon.drivers.files import FileKind, UntrustedFile, open_untrusted
 # The days a fleet's recordings may lie on: no gateway records before 2000, and a time after the
 # last one is no clock's reading (drivers/base.py MAX_TIME_S); a day folder outside is skipped.
 FIRST_DAY = dt.date(2000, 1, 1)
-LAST_DAY = dt.datetime.fromtimestamp(MAX_TIME_S, dt.timezone.utc).date() - dt.timedelta(days=1)
+LAST_DAY = dt.datetime.fromtimestamp(MAX_TIME_S, dt.UTC).date() - dt.timedelta(days=1)
 # Nor is a day after tomorrow (UTC) yet: a gateway whose clock was set years ahead would otherwise
 # stand as the wagon's latest state until that day came. A day of margin for the time zones.
 FUTURE_DAYS = 1
@@ -60,7 +60,7 @@ def inside(root: Path, path: Path) -> bool:
 
 def last_day(today: dt.date | None = None) -> dt.date:
     """The last day a recording may lie on, seen on `today` (default: today, UTC)."""
-    today = today if today is not None else dt.datetime.now(dt.timezone.utc).date()
+    today = today if today is not None else dt.datetime.now(dt.UTC).date()
     return min(LAST_DAY, today + dt.timedelta(days=FUTURE_DAYS))
 
 

@@ -21,7 +21,7 @@ from bogiemon.detection.kinematics import BogieGeometry, Corner
 from bogiemon.simulator.errors import SimulationError
 from bogiemon.simulator.model_b import parameters as model_b_parameters
 from bogiemon.simulator.params import LOADS, default_parameter_set
-from bogiemon.simulator.sensors import SensorModel
+from bogiemon.simulator.sensors import SENSOR_VARIANTS, SensorModel
 from bogiemon.simulator.suspension import Fault
 from bogiemon.simulator.track import TRACKS
 
@@ -179,6 +179,16 @@ class Scenario:
             raise SimulationError("sensor noise and quantum must be >= 0 m/s^2 and the bias three values")
         if len(s.gain) != 3 or not all(math.isfinite(g) and g != 0 for g in s.gain):
             raise SimulationError(f"sensor gains must be three finite, non-zero values, got {s.gain}")
+        if s.variant not in SENSOR_VARIANTS:
+            raise SimulationError(f"unknown sensor variant '{s.variant}': use one of {', '.join(SENSOR_VARIANTS)} (docs/simulator.md)")
+        if self.model == "b" and s.variant != "standard":
+            # B's part is its own chain (its filter runs in its kernel, its noise inside or after).
+            raise SimulationError(
+                f"model b reads its sensor part from its parameter set: give parameters="
+                f"model_b.parameters.with_sensor_variant(parameters, '{s.variant}') and the standard sensor variant"
+            )
+        if len(s.element_noise_mps2) != 3 or not all(math.isfinite(n) and n >= 0 for n in s.element_noise_mps2):
+            raise SimulationError(f"sensor element noise must be three values >= 0 m/s^2, got {s.element_noise_mps2}")
 
     @property
     def oversampling(self) -> int:
@@ -214,6 +224,8 @@ class Scenario:
                 "bias_mps2": list(self.sensor.bias_mps2),
                 "quantum_mps2": self.sensor.quantum_mps2,
                 "gain": list(self.sensor.gain),
+                "variant": self.sensor.variant,
+                "element_noise_mps2": list(self.sensor.element_noise_mps2),
             },
             "max_step_s": self.max_step_s,
             "parameters": self.parameters,
@@ -246,6 +258,9 @@ class Scenario:
                     quantum_mps2=float(sensor["quantum_mps2"]),
                     # Sidecars written before the gain existed: exact sensors.
                     gain=tuple(float(g) for g in sensor.get("gain", (1.0, 1.0, 1.0))),  # type: ignore[arg-type]
+                    # Sidecars written before the sensor variants: the standard part, no element noise.
+                    variant=str(sensor.get("variant", "standard")),
+                    element_noise_mps2=tuple(float(n) for n in sensor.get("element_noise_mps2", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
                 ),
                 max_step_s=float(data["max_step_s"]),
                 parameters=data["parameters"],

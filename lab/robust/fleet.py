@@ -35,6 +35,7 @@ of the evaluation fleet is used to fit them.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -46,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, WindowIndicators
+from bogiemon.simulator.model_b import parameters as model_b_parameters
 from bogiemon.simulator.scenario import Scenario, SpeedProfile
 from bogiemon.lab.study.plan import HEALTHY, table4_cases
 from bogiemon.lab.robust.wagons import Wagon, make_wagon
@@ -70,6 +72,9 @@ TARE_INNER: dict[str, tuple[float, ...]] = {"type_a.tare.front_inner": (0.0, 0.5
 
 
 HISS_RMS_MPS2 = 0.4  # "hiss a2": per sample at the recording's rate
+# Where the noisy sensor's white noise enters: added to the recording after the sensor ("hiss aN",
+# damage_sensors), or inside it, before its filters (a failing element: hiss_inside).
+HISS_WHERE = ("after", "inside")
 
 # What can be wrong with the sensors (applied to the simulated output; see damage_sensors).
 SENSOR_DAMAGE: dict[str, str] = {
@@ -129,6 +134,33 @@ def damage_sensors(accel_mps2: np.ndarray, damage: str, fs_hz: float, seed: int)
     else:  # pragma: no cover - SENSOR_DAMAGE lists every kind
         raise ValueError(f"unknown sensor damage '{damage}'")
     return a
+
+
+def hiss_inside(scenario: Scenario, channel: int, rms_mps2: float = HISS_RMS_MPS2) -> Scenario:
+    """The scenario with white noise inside one channel's sensor, before its filters (a failing
+    element, shaped like the signal), of the density the recording's "hiss" has: white noise of
+    rms_mps2 per sample at the scenario's rate. Model A's element noise (simulator/sensors.py) or
+    model B's (its [sensor] section, through B's own anti-alias filter); either then passes the
+    scenario's sensor variant."""
+    if scenario.model == "b":
+        parameters = copy.deepcopy(scenario.parameters)
+        assert parameters is not None
+        density = [0.0, 0.0, 0.0]
+        density[channel] = rms_mps2 / math.sqrt(scenario.fs_hz / 2.0)
+        parameters["vehicle"]["sensor"]["element_noise_density_mps2_per_sqrt_hz"] = density
+        return dataclasses.replace(scenario, parameters=parameters)
+    noise = [0.0, 0.0, 0.0]
+    noise[channel] = rms_mps2
+    return dataclasses.replace(scenario, sensor=dataclasses.replace(scenario.sensor, element_noise_mps2=(noise[0], noise[1], noise[2])))
+
+
+def with_sensor_variant(scenario: Scenario, variant: str) -> Scenario:
+    """The scenario read by another sensor part (simulator/sensors.py SENSOR_VARIANTS): model A's
+    SensorModel.variant, model B's [sensor] section (its own chain takes the part's filter)."""
+    if scenario.model == "b":
+        assert scenario.parameters is not None
+        return dataclasses.replace(scenario, parameters=model_b_parameters.with_sensor_variant(scenario.parameters, variant))
+    return dataclasses.replace(scenario, sensor=dataclasses.replace(scenario.sensor, variant=variant))
 
 
 def fault_cells() -> dict[str, tuple[float, ...]]:

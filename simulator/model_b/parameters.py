@@ -22,6 +22,9 @@ PARAMETER_FILE = "y25_wagon_b.toml"
 LOADS = ("full", "tare")
 # Sensor skew is a delay line inside the kernel of this many integration steps.
 MAX_SKEW_STEPS = 7
+# The kernel runs every scenario of a batch through as many filter sections (sensors.N_SECTIONS):
+# the resonance and up to two of the anti-alias Butterworth.
+MAX_ANTIALIAS_ORDER = 4
 
 
 def default_parameter_set() -> dict[str, Any]:
@@ -78,6 +81,13 @@ class SensorParameters:
     hunting_bandwidth_fraction: float
     hunting_rms_mps2_at_100_kmh: float
     random_lateral_rms_mps2_at_100_kmh: float
+    # Extra white noise of each channel's sensing element (a failing one), a density like the
+    # sensor's own and shaped by its anti-alias filter whatever noise_inside says: inside the sensor.
+    element_noise_density_mps2_per_sqrt_hz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    antialias_order: int = 4  # of the anti-alias Butterworth (1 to MAX_ANTIALIAS_ORDER)
+    # The sensor's white noise enters before its anti-alias filter (True: the MEMS element feeds
+    # it) or after it (the converter's or the cable's, white up to Nyquist).
+    noise_inside: bool = True
 
 
 @dataclass(frozen=True)
@@ -167,6 +177,23 @@ def _triple(values: Any, what: str) -> tuple[float, float, float]:
     return out
 
 
+def with_sensor_variant(parameters: dict[str, Any], variant: str) -> dict[str, Any]:
+    """A copy of a parameter set read by another sensor part (simulator/sensors.py SENSOR_VARIANTS):
+    the part's Butterworth (order, corner) as the sensor's anti-alias filter and its noise before or
+    after it; "standard" leaves model B's own MEMS as the set has it."""
+    from bogiemon.simulator.sensors import SENSOR_VARIANTS  # model A's sensor module names the parts
+
+    if variant not in SENSOR_VARIANTS:
+        raise SimulationError(f"unknown sensor variant '{variant}': use one of {', '.join(SENSOR_VARIANTS)}")
+    out = {"model": parameters["model"], "vehicle": {**parameters["vehicle"], "sensor": dict(parameters["vehicle"]["sensor"])}}
+    part = SENSOR_VARIANTS[variant]
+    if part.order:
+        out["vehicle"]["sensor"].update(
+            antialias_order=part.order, antialias_fraction_of_fs=part.corner_fraction_of_fs, noise_inside=part.noise_inside
+        )
+    return out
+
+
 def wagon_parameters(parameter_set: dict[str, Any], load: str) -> WagonParameters:
     """Typed parameters of model B for `load` ('full' or 'tare')."""
     if not is_parameter_set(parameter_set):
@@ -213,6 +240,10 @@ def wagon_parameters(parameter_set: dict[str, Any], load: str) -> WagonParameter
             hunting_bandwidth_fraction=float(sens["hunting_bandwidth_fraction"]),
             hunting_rms_mps2_at_100_kmh=float(sens["hunting_rms_mps2_at_100_kmh"]),
             random_lateral_rms_mps2_at_100_kmh=float(sens["random_lateral_rms_mps2_at_100_kmh"]),
+            # Parameter sets written before these: no element noise, the 4th-order filter, the noise inside.
+            element_noise_density_mps2_per_sqrt_hz=_triple(sens.get("element_noise_density_mps2_per_sqrt_hz", (0.0, 0.0, 0.0)), "element_noise_density_mps2_per_sqrt_hz"),
+            antialias_order=int(sens.get("antialias_order", 4)),
+            noise_inside=bool(sens.get("noise_inside", True)),
         )
         params = WagonParameters(
             load=load,
@@ -283,6 +314,10 @@ def _check(p: WagonParameters) -> None:
         raise SimulationError(f"model B sensor: bits must be 0 (no converter) or 2..32 with range_g > 0, got {s.bits}, {s.range_g}")
     if any(t < 0 for t in s.skew_s):
         raise SimulationError(f"model B sensor: skew_s must be >= 0 s (relative sample instants), got {s.skew_s}")
+    if not all(math.isfinite(d) and d >= 0 for d in s.element_noise_density_mps2_per_sqrt_hz):
+        raise SimulationError(f"model B sensor: element_noise_density_mps2_per_sqrt_hz must be >= 0, got {s.element_noise_density_mps2_per_sqrt_hz}")
+    if not 1 <= s.antialias_order <= MAX_ANTIALIAS_ORDER:
+        raise SimulationError(f"model B sensor: antialias_order must lie in 1..{MAX_ANTIALIAS_ORDER}, got {s.antialias_order}")
     if not 0.0 < s.antialias_fraction_of_fs < 0.5:
         raise SimulationError(f"model B sensor: antialias_fraction_of_fs must lie in (0, 0.5), got {s.antialias_fraction_of_fs}")
 

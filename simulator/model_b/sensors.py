@@ -9,13 +9,16 @@ In the kernel, at the integration rate, for each channel (a reference of the sam
   2. the channel's sample skew, a fractional delay (linear interpolation on a short delay line);
   3. the mounting/sensor resonance, a lightly damped second-order low-pass (bilinear transform,
      prewarped at the resonance; it lifts the response by (f / f_n)^2 below the resonance);
-  4. the sensor's digital anti-alias filter, a 4th-order Butterworth at a fraction of the output
-     rate (MEMS output filters sit at ODR/4 to ODR/2, so some aliasing remains, as in real parts),
-     and decimation to the output rate.
+  4. the sensor's digital anti-alias filter, a Butterworth (4th order as shipped) at a fraction of
+     the output rate (MEMS output filters sit at ODR/4 to ODR/2, so some aliasing remains, as in real
+     parts), and decimation to the output rate.
 After the kernel, at the output rate (`convert`): the channel's gain and zero-g bias, a 1/f-like
 bias drift (four Ornstein-Uhlenbeck processes a decade apart, which approximate flicker noise,
-plus a random walk), white noise of the given density shaped by the same anti-alias response,
-clipping at the range and quantisation to the converter's step.
+plus a random walk), white noise of the given density shaped by the same anti-alias response (or,
+with noise_inside false, white after it), a failing element's white noise per channel (shaped
+by the filter: inside), clipping at the range and quantisation to the converter's step.
+Another sensor part (simulator/sensors.py SENSOR_VARIANTS) is the parameter set's [sensor] with
+its filter and noise entry: parameters.with_sensor_variant.
 Model A's sensor is a Chebyshev anti-alias with gain, constant bias, white noise and quantisation.
 """
 
@@ -28,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
-from bogiemon.simulator.model_b.parameters import SensorParameters
+from bogiemon.simulator.model_b.parameters import MAX_ANTIALIAS_ORDER, SensorParameters
 
 if TYPE_CHECKING:
     from bogiemon.simulator.scenario import SpeedProfile
@@ -36,8 +39,7 @@ if TYPE_CHECKING:
 FloatArray = NDArray[np.float64]
 STANDARD_GRAVITY_MPS2 = 9.80665  # the unit of a sensor's range in g
 DELAY_LINE = 16  # samples kept per channel for the skew (a power of two: the kernel masks the index)
-ANTIALIAS_ORDER = 4
-N_SECTIONS = 3  # the resonance, then the two sections of the Butterworth
+N_SECTIONS = 1 + (MAX_ANTIALIAS_ORDER + 1) // 2  # the resonance, then the Butterworth's, identity sections after a lower order
 REFERENCE_SPEED_MPS = 100.0 / 3.6
 DRIFT_TIME_CONSTANTS_S = (0.3, 3.0, 30.0, 300.0)
 LATERAL_BAND_HZ = (0.5, 20.0)
@@ -54,14 +56,16 @@ def resonance_section(resonance_hz: float, damping_ratio: float, rate_hz: float)
 
 
 def chain_sos(sensor: SensorParameters, rate_hz: float, fs_out_hz: float) -> FloatArray:
-    """(3, 6) sections of the in-kernel chain: resonance, then the anti-alias Butterworth."""
-    butter = signal.butter(ANTIALIAS_ORDER, sensor.antialias_fraction_of_fs * fs_out_hz, fs=rate_hz, output="sos")
-    return np.vstack([resonance_section(sensor.resonance_hz, sensor.resonance_damping_ratio, rate_hz)[None, :], butter])
+    """(N_SECTIONS, 6) sections of the in-kernel chain: resonance, then the anti-alias Butterworth
+    (identity sections after a lower order, so that every scenario of a batch has as many)."""
+    butter = signal.butter(sensor.antialias_order, sensor.antialias_fraction_of_fs * fs_out_hz, fs=rate_hz, output="sos")
+    pad = np.tile(IDENTITY_SECTION, (N_SECTIONS - 1 - butter.shape[0], 1))
+    return np.vstack([resonance_section(sensor.resonance_hz, sensor.resonance_damping_ratio, rate_hz)[None, :], butter, pad])
 
 
 def output_sos(sensor: SensorParameters, fs_out_hz: float) -> FloatArray:
-    """The anti-alias response at the output rate (it shapes the white noise)."""
-    return signal.butter(ANTIALIAS_ORDER, sensor.antialias_fraction_of_fs * fs_out_hz, fs=fs_out_hz, output="sos")
+    """The anti-alias response at the output rate (it shapes the white noise inside the sensor)."""
+    return signal.butter(sensor.antialias_order, sensor.antialias_fraction_of_fs * fs_out_hz, fs=fs_out_hz, output="sos")
 
 
 def skew_steps(sensor: SensorParameters, step_s: float) -> FloatArray:
@@ -150,6 +154,9 @@ def convert(accel_mps2: FloatArray, sensor: SensorParameters, fs_hz: float, rng:
     out = out + bias_drift(sensor, n, fs_hz, rng)
     if sensor.noise_density_mps2_per_sqrt_hz > 0:
         white = sensor.noise_density_mps2_per_sqrt_hz * math.sqrt(fs_hz / 2.0) * rng.standard_normal((n, 3))
+        out = out + (signal.sosfilt(output_sos(sensor, fs_hz), white, axis=0) if sensor.noise_inside else white)
+    if any(sensor.element_noise_density_mps2_per_sqrt_hz):  # a failing element: inside, shaped alike
+        white = np.asarray(sensor.element_noise_density_mps2_per_sqrt_hz) * math.sqrt(fs_hz / 2.0) * rng.standard_normal((n, 3))
         out = out + signal.sosfilt(output_sos(sensor, fs_hz), white, axis=0)
     if sensor.bits:
         full_scale = sensor.range_g * STANDARD_GRAVITY_MPS2

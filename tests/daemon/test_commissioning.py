@@ -68,7 +68,6 @@ def test_each_load_is_commissioned_from_its_own_recordings_with_its_own_spread(c
 
 def test_windows_of_other_runs_go_to_their_own_load_state(commissioned) -> None:  # type: ignore[no-untyped-def]
     _, config = commissioned
-    states = config.load_signatures()
     for load, seed, track, speed in (("full", 21, "erri-low", 75.0), ("tare", 22, "fra-5", 70.0)):
         discriminant = config.load_discriminant()
         assert discriminant is not None and discriminant.separation >= 2 * discriminant.margin

@@ -239,3 +239,14 @@ def test_merged_commissioning_structures_are_the_structure_of_their_windows_toge
     together = learn_structure(first + second, GEOMETRY)
     assert merged == together
     assert merge_structures([]).checks == ()
+
+
+def test_the_low_band_noise_check_speaks_only_while_the_wagon_runs_steadily() -> None:
+    # Braking to a stop pitches the frame at 0.5-1 Hz: one healthy channel's power there rose 3.35
+    # times the median in a simulated stop (model B), past noise_low_band_ratio.
+    matrix = frame_matrix(independent_rails=True)
+    matrix[0] = np.diag([1e-3, 3.4e-3, 1e-3]).astype(np.complex128)
+    running = assess_window(window(matrix=matrix), SETTINGS)
+    stopping = assess_window(window(matrix=matrix, hop_min=(0.028,) * 3, hop_max=(0.2,) * 3), SETTINGS)
+    assert running.gate is None and running.problems == {"a2": (SensorProblem.NOISY,)}
+    assert stopping.gate is Gate.NON_STATIONARY and stopping.problems == {}

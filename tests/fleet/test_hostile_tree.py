@@ -62,7 +62,7 @@ def test_a_fleet_folder_whose_name_is_not_utf8_is_one_clear_error(tmp_path: Path
         tiny.analyze(tiny.fleet(tmp_path / "fleet"), tmp_path / os.fsdecode(b"windows\xff"))
 
 
-AFTER_TOMORROW = (dt.datetime.now(dt.timezone.utc).date() + dt.timedelta(days=2)).isoformat()
+AFTER_TOMORROW = (dt.datetime.now(dt.UTC).date() + dt.timedelta(days=2)).isoformat()
 
 
 @pytest.mark.parametrize("date", ["0001-01-01", "9999-12-31", "1999-12-31", "2100-01-01", AFTER_TOMORROW])
@@ -75,7 +75,7 @@ def test_a_day_no_gateways_clock_reads_is_skipped_and_the_fleet_judged_and_repor
     judged = judge_fleet(tmp_path / "windows", tmp_path / "judged")
     report = write_report(tmp_path / "judged", tmp_path / "report.html")
 
-    newest = min("2099-12-31", (dt.datetime.now(dt.timezone.utc).date() + dt.timedelta(days=1)).isoformat())
+    newest = min("2099-12-31", (dt.datetime.now(dt.UTC).date() + dt.timedelta(days=1)).isoformat())
     assert _reasons(summary.issues)[date] == f"a day outside 2000-01-01 .. {newest} (no gateway's clock reads it now); skipped"
     assert summary.partitions == 4 and judged.wagons == 2 and report.wagons == 2
 

@@ -33,7 +33,7 @@ DAYS = ("2026-11-02", "2026-11-03")
 def recording(path: Path, date: str | None, hhmm: str = "06:00", duration_s: float = 45.0, seed: int = 0) -> Path:
     """Seeded noise from date hhmm UTC, as the recorder writes it (Unix times); from the
     recording's own origin (0 s, as a simulator writes it) when date is None."""
-    start_s = 0.0 if date is None else dt.datetime.strptime(f"{date} {hhmm}", "%Y-%m-%d %H:%M").replace(tzinfo=dt.timezone.utc).timestamp()
+    start_s = 0.0 if date is None else dt.datetime.strptime(f"{date} {hhmm}", "%Y-%m-%d %H:%M").replace(tzinfo=dt.UTC).timestamp()
     n = int(duration_s * FS_HZ)
     rng = np.random.default_rng(seed)
     path.parent.mkdir(parents=True, exist_ok=True)
