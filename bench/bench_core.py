@@ -15,6 +15,7 @@ Run with `make bench-core` or
 from __future__ import annotations
 
 import argparse
+import functools
 import subprocess
 import sys
 import tempfile
@@ -92,7 +93,7 @@ def analyze_figures(runs: int, vs_python: str | None = None) -> list[Figure]:
         commands = [[python, "-m", "bogiemon.daemon.cli.main", "analyze", str(paths[suffix])] for suffix, _ in formats for python in pythons]
         # From a folder without a bogiemon/ in it: each interpreter imports its own tree.
         seconds = time_interleaved(
-            [lambda command=command: subprocess.run(command, check=True, stdout=subprocess.DEVNULL, cwd=tmp) for command in commands], runs
+            [functools.partial(subprocess.run, command, check=True, stdout=subprocess.DEVNULL, cwd=tmp) for command in commands], runs
         )
     out: list[Figure] = []
     for k, (suffix, name) in enumerate(formats):

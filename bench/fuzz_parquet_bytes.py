@@ -252,7 +252,7 @@ def _chunks(footer: Fields) -> list[Fields]:
 
 def page_headers(body: bytes, footer: Fields) -> list[tuple[int, int, Fields]]:
     """(start, end, fields) of every page header the column chunks hold, as their metadata say."""
-    out = []
+    out: list[tuple[int, int, Fields]] = []
     for meta in _chunks(footer):
         first = min(f[2] for f in meta if f[0] in (9, 11) and isinstance(f[2], int))
         size = _field(meta, 7)

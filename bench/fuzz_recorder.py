@@ -127,7 +127,7 @@ def free_bytes(path: Path) -> int:
 
 
 def generate(rng: random.Random) -> fuzz_core.Input:
-    segments = []
+    segments: list[list[Any]] = []
     for _ in range(rng.randint(1, 5)):
         segments.append([rng.choice(("healthy", "broken")), rng.choice((6, 8, 12, 20, 30)) + rng.randint(0, 8)])
     if all(kind == "healthy" for kind, _ in segments):
@@ -225,7 +225,7 @@ class Files:
 
 def own_files(folder: Path) -> dict[str, int]:
     """The recorder's files (its names, regular files, no symlinks) and their sizes."""
-    out = {}
+    out: dict[str, int] = {}
     try:
         entries = list(os.scandir(folder))
     except FileNotFoundError:
@@ -289,7 +289,7 @@ def _run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
         if verdict is not None:
             return verdict
         events: list[Event] = []
-        events_at = {}
+        events_at: dict[Any, list[Any]] = {}
         for e in data["disk_events"]:
             events_at.setdefault(e[0], []).append(e)
         attempts = 0

@@ -164,9 +164,9 @@ def _gzip_member(data: bytes, level: int, rng: random.Random) -> bytes:
         extra += b"logger 1.2\x00"
     header = b"\x1f\x8b\x08" + bytes([flags]) + struct.pack("<I", 0) + b"\x00\xff" + extra
     if rng.random() < 0.05:
-        header = bytearray(header)
-        header[3] |= 0x02  # FHCRC
-        header = bytes(header) + struct.pack("<H", zlib.crc32(bytes(header)) & 0xFFFF)
+        with_crc = bytearray(header)
+        with_crc[3] |= 0x02  # FHCRC
+        header = bytes(with_crc) + struct.pack("<H", zlib.crc32(bytes(with_crc)) & 0xFFFF)
     packer = zlib.compressobj(level, zlib.DEFLATED, -15)
     body = packer.compress(data) + packer.flush()
     return header + body + struct.pack("<II", zlib.crc32(data), len(data) & 0xFFFFFFFF)

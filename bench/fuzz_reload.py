@@ -25,7 +25,7 @@ import random
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import FrameType
@@ -273,8 +273,10 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     saved = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
     try:
         feed = ReloadFeed(blocks, data, config, state)
-        sink, windows = MemorySink(), []
-        service = TappedService(config, lambda _config: FeedSource(feed), notifier=notifier, sinks=[sink], observers=[windows.append], tap=feed.tap)
+        sink = MemorySink()
+        windows: list[Any] = []
+        # ReloadFeed is duck-typed to what FeedSource reads of a feed.
+        service = TappedService(config, lambda _config: FeedSource(feed), notifier=notifier, sinks=[sink], observers=[windows.append], tap=feed.tap)  # type: ignore[arg-type]
         feed.service = service
         service.install_signal_handlers()
         with structlog.testing.capture_logs() as logs:
@@ -291,7 +293,7 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     return _judge(feed, blocks, sink, windows, logs, before)
 
 
-def _judge(feed: ReloadFeed, blocks: list[Block], sink: MemorySink, windows: list, logs: list[dict], before: tuple[int, int]) -> fuzz_core.Verdict:
+def _judge(feed: ReloadFeed, blocks: list[Block], sink: MemorySink, windows: list[Any], logs: Sequence[Mapping[str, Any]], before: tuple[int, int]) -> fuzz_core.Verdict:
     plan = feed.plan
     rejected = [e for e in logs if e["event"].startswith("reload rejected")]
     reloaded = [e for e in logs if e["event"] == "reloaded" and not e.get("unchanged")]

@@ -216,7 +216,7 @@ def calibrate_windows(
         # The wagon's own load states, told apart by its own windows (daemon/commissioning.py).
         split = split_loads(judgeable, geometry, config.load_model())
         for ld, ws in split.windows.items():
-            by_load[ld] = ws
+            by_load[LoadState(ld)] = ws
     else:
         by_load[LoadState(load)] = judgeable
     wanted = LOADS if load == "auto" else (LoadState(load),)

@@ -123,7 +123,7 @@ def floor_excess(window: WindowIndicators, settings: HealthSettings) -> NDArray[
     if floor is None:
         return None
     excess = np.minimum(floor.density / np.asarray(settings.noise_floor_psd), floor.ratio / np.asarray(settings.noise_floor_ratio))
-    return excess.max(axis=0)  # type: ignore[no-any-return]
+    return excess.max(axis=0)
 
 
 def floor_noisy_channels(window: WindowIndicators, settings: HealthSettings) -> list[int]:

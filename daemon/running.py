@@ -111,8 +111,8 @@ def choose_load(
         return _against(LoadChoice(side, "commissioned", p_full=p_full), by_load[side], x, excitation_mps2)
     if len(by_load) == len(LoadState):  # both states, no line between them: the nearer
         assert x is not None
-        nearest = min(states, key=lambda s: s.distance(x))
-        return _against(LoadChoice(nearest.load, "commissioned"), nearest, x, excitation_mps2)
+        closest = min(states, key=lambda s: s.distance(x))
+        return _against(LoadChoice(closest.load, "commissioned"), closest, x, excitation_mps2)
     if model is None:
         raise ValueError("load 'auto' needs the load model")
     p_full = model.probability_of(x) if x is not None else math.nan

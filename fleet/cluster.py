@@ -15,7 +15,7 @@ import asyncio
 import concurrent.futures
 import logging
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Protocol, TypeVar
 
@@ -40,7 +40,7 @@ class Runner(Protocol):
 
     workers: int
 
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[R]: ...
+    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Generator[R, None, None]: ...
 
 
 class InProcess:
@@ -48,7 +48,7 @@ class InProcess:
 
     workers = 1
 
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[R]:
+    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Generator[R, None, None]:
         for item in items:
             yield fn(item)
 
@@ -65,7 +65,7 @@ class DaskRunner:
         except (OSError, TimeoutError) as exc:
             raise ClusterError(f"the Dask scheduler does not answer: {one_line(exc)}") from None
 
-    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Iterator[R]:
+    def map(self, fn: Callable[[T], R], items: Sequence[T]) -> Generator[R, None, None]:
         from distributed import as_completed
         from distributed.scheduler import KilledWorker
 

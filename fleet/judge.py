@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -63,6 +63,15 @@ class LoadEvidence:
     last_day: list[list[float]] = field(default_factory=list)
 
 
+class MeanEvidence(TypedDict):
+    """A load state's mean coupling vectors on the first and last day, and their windows."""
+
+    first_day: list[float]
+    last_day: list[float]
+    first_day_windows: int
+    last_day_windows: int
+
+
 @dataclass(frozen=True)
 class WagonJudged:
     wagon_id: str
@@ -79,7 +88,7 @@ class WagonJudged:
     trend: float | None  # the latest judged window's trend and its alarm level
     trend_alarm: float | None
     days: tuple[str, ...]
-    evidence: dict[str, dict[str, list[float] | int]]  # load -> first/last day mean coupling vector, windows
+    evidence: dict[str, MeanEvidence]  # load -> first/last day mean coupling vector, windows
     issues: tuple[Issue, ...]
 
 
@@ -171,7 +180,7 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
             monitor.on_window(Windowed(window, window_status, gaps.count_before(window.end_s), segment))
         if windows:
             last_end_s = windows[-1].end_s
-    mean_evidence = {
+    mean_evidence: dict[str, MeanEvidence] = {
         load: {
             "first_day": np.mean(ev.first_day, axis=0).tolist() if ev.first_day else [],
             "last_day": np.mean(ev.last_day, axis=0).tolist() if ev.last_day else [],
@@ -258,7 +267,7 @@ def judge_fleet(
         for wagon, j in zip(fleet.wagons, judged, strict=True):
             series_path = out / "series" / f"wagon={wagon.wagon_id}" / SERIES_FILE
             make_room(series_path, out)
-            write_atomically(series_path, lambda temporary, series=j.series: write_parquet(series, temporary))
+            write_atomically(series_path, functools.partial(write_parquet, j.series))
             entries.append(_wagon_entry(wagon, j, relative.get(wagon.wagon_id)))
         entries.sort(key=lambda e: (-e["attention"], e["wagon"]))
         issues = (*fleet.issues, *(i for j in judged for i in j.issues))

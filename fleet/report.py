@@ -285,7 +285,7 @@ def render(judged: Judged, title: str | None = None, written_utc: datetime | Non
         + f'</p><p class="small">Inputs: {inputs["wagons"]} wagons, {inputs["recordings"]} recordings, {len(skipped)} skipped.</p>'
         f"{skipped_html}</header>"
     )
-    page = (
+    html = (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width,initial-scale=1">'
         f"<title>{_e(title)}</title><style>{CSS}</style></head><body>\n{header}\n"
@@ -293,7 +293,7 @@ def render(judged: Judged, title: str | None = None, written_utc: datetime | Non
         + "\n".join(sections)
         + f"\n<script>{SCRIPT}</script>\n</body></html>\n"
     )
-    return page, points
+    return html, points
 
 
 def write_report(judged_dir: Path | str, out_path: Path | str, title: str | None = None) -> ReportSummary:
@@ -307,7 +307,7 @@ def write_report(judged_dir: Path | str, out_path: Path | str, title: str | None
         write_bytes_atomically(out, data)
     except OSError as exc:
         raise ReportError(f"{shown(out)}: cannot be written ({exc.strerror or exc})") from None
-    counts = {s: sum(1 for p in judged.wagons if p.entry["state"] == s) for s in STATES}
+    counts = {s.value: sum(1 for p in judged.wagons if p.entry["state"] == s) for s in STATES}
     return ReportSummary(
         path=out,
         wagons=len(judged.wagons),

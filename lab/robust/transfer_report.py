@@ -127,8 +127,8 @@ def _load(score: MethodScore) -> tuple[int, float]:
 
 _noisy_text = f"noisy sensor ({HISS_RMS_MPS2:g} m/s^2 RMS on {NOISY_CHANNEL})"
 def _silent_faults(score: MethodScore) -> tuple[int, float]:
-    cells = [*score.cells, *score.sequence_cells]
-    return sum(c.silent for c in cells), sum(c.runs for c in score.cells) + sum(c.sequences for c in score.sequence_cells)
+    silent = sum(c.silent for c in score.cells) + sum(c.silent for c in score.sequence_cells)
+    return silent, sum(c.runs for c in score.cells) + sum(c.sequences for c in score.sequence_cells)
 
 
 def _all_faults(score: MethodScore) -> tuple[int, float]:

@@ -13,7 +13,7 @@ from bogiemon.daemon.commissioning import LIMIT_MIN, SUSTAINED_ALARM_FLOOR, SUST
 from bogiemon.daemon.config import load_config
 from bogiemon.daemon.models import excitation_of, load_features, shipped_models
 from bogiemon.daemon.running import JUDGED_DOWN_TO, choose_load, level_margin
-from bogiemon.daemon.vocabulary import LoadSetting
+from bogiemon.daemon.vocabulary import LoadSetting, LoadState
 from bogiemon.daemon.verdict import WindowJudge
 from bogiemon.detection import IndicatorStream
 from bogiemon.simulator import Scenario, simulate
@@ -24,12 +24,12 @@ from bogiemon.simulator.scenario import SpeedProfile
 CONFIG = load_config(None)
 
 
-def _scenario(load: str, seed: int, track: str, speed_kmh: float, parameters: dict | None = None) -> Scenario:  # type: ignore[type-arg]
+def _scenario(load: str, seed: int, track: str, speed_kmh: float, parameters: dict | None = None) -> Scenario:
     return Scenario(load=load, track=track, speed=SpeedProfile(((0.0, speed_kmh),)), duration_s=300.0, seed=seed, parameters=parameters)
 
 
 @pytest.fixture(scope="module")
-def commissioned(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+def commissioned(tmp_path_factory: pytest.TempPathFactory):
     """A wagon commissioned per load from its own recordings (two tracks and speeds each), as the
     README asks; its fragment included in the config."""
     folder = tmp_path_factory.mktemp("commissioning")
@@ -45,13 +45,13 @@ def commissioned(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-u
     return result, load_config(folder / "bogiemon.toml")
 
 
-def _windows(scenario: Scenario, config):  # type: ignore[no-untyped-def]
+def _windows(scenario: Scenario, config):
     result = simulate(scenario)
     stream = IndicatorStream(config.processing_settings(scenario.fs_hz), config.bogie_geometry())
     return stream.process(result.accel_mps2)
 
 
-def test_each_load_is_commissioned_from_its_own_recordings_with_its_own_spread(commissioned) -> None:  # type: ignore[no-untyped-def]
+def test_each_load_is_commissioned_from_its_own_recordings_with_its_own_spread(commissioned) -> None:
     result, config = commissioned
     assert [c.load for c in result.loads] == ["full", "tare"]
     for c in result.loads:
@@ -66,7 +66,7 @@ def test_each_load_is_commissioned_from_its_own_recordings_with_its_own_spread(c
     np.testing.assert_allclose(config.health_settings().noise_floor_ratio, result.noise_floor.ratio, rtol=1e-3)
 
 
-def test_windows_of_other_runs_go_to_their_own_load_state(commissioned) -> None:  # type: ignore[no-untyped-def]
+def test_windows_of_other_runs_go_to_their_own_load_state(commissioned) -> None:
     _, config = commissioned
     for load, seed, track, speed in (("full", 21, "erri-low", 75.0), ("tare", 22, "fra-5", 70.0)):
         discriminant = config.load_discriminant()
@@ -76,13 +76,13 @@ def test_windows_of_other_runs_go_to_their_own_load_state(commissioned) -> None:
         assert got.count(load) >= 0.9 * len(got) and not set(got) - {load, None}, got
 
 
-def _load_of(window, config):  # type: ignore[no-untyped-def]
+def _load_of(window, config):
     x = load_features(window, config.bogie_geometry())
     settings = config.monitor_settings()
     return choose_load(LoadSetting.AUTO, x, excitation_of(window), settings.load_states, settings.load_discriminant, settings.load_model).load
 
 
-def test_a_half_loaded_wagon_raises_no_alarm_and_says_how_far_it_is_from_the_commissioning(commissioned) -> None:  # type: ignore[no-untyped-def]
+def test_a_half_loaded_wagon_raises_no_alarm_and_says_how_far_it_is_from_the_commissioning(commissioned) -> None:
     # The load vector moves with the track and the speed as much as with a partial load (daemon/
     # commissioning.py), so a half load is judged in the nearest commissioned state with its
     # distance stated, or not judged when beyond the state's limit; never an alarm for it.
@@ -119,7 +119,7 @@ def test_runs_are_stretches_of_consecutive_windows() -> None:
 
 
 def test_a_wagon_that_scatters_more_out_of_sample_gets_higher_levels() -> None:
-    model = shipped_models().fused["full"]
+    model = shipped_models().fused[LoadState.FULL]
     rng = np.random.default_rng(5)
     p = model.covariance.shape[0]
     steady = rng.multivariate_normal(np.zeros(p), model.covariance, size=300)
@@ -132,7 +132,7 @@ def test_a_wagon_that_scatters_more_out_of_sample_gets_higher_levels() -> None:
 
 
 def test_the_window_levels_stay_above_what_the_wagons_own_runs_sustained_out_of_sample() -> None:
-    model = shipped_models().fused["full"]
+    model = shipped_models().fused[LoadState.FULL]
     rng = np.random.default_rng(6)
     p = model.covariance.shape[0]
     rows = rng.multivariate_normal(np.zeros(p), model.covariance, size=300)
@@ -153,7 +153,7 @@ def test_the_window_levels_stay_above_what_the_wagons_own_runs_sustained_out_of_
     assert fit.levels.warning >= min(SUSTAINED_WARNING_FLOOR * max(max(s) for s in suspecting), fit.levels.alarm)
 
 
-def test_a_window_gentler_than_the_commissioning_is_judged_with_raised_levels_and_far_gentler_not_at_all(commissioned) -> None:  # type: ignore[no-untyped-def]
+def test_a_window_gentler_than_the_commissioning_is_judged_with_raised_levels_and_far_gentler_not_at_all(commissioned) -> None:
     # The dampers stick more the gentler the running: a smooth track at walking pace on a loaded
     # wagon is unlike the commissioning, whatever its load vector says. Down to half the gentlest
     # commissioning window it is judged with its levels raised (stated in its limits); below, not.
@@ -176,6 +176,7 @@ def test_a_window_gentler_than_the_commissioning_is_judged_with_raised_levels_an
             elif judged.judgement is not None:  # the gentle run's sensors and gate allowing
                 margin = level_margin(lowest / excitation_of(w))
                 assert judged.judgement.level_margin == pytest.approx(margin) and margin > 1.0
+                assert judged.load is not None
                 plain = judge.decider.judge(w, judged.load)
                 assert judged.judgement.limits["fused_score"].alarm == pytest.approx(margin * plain.limits["fused_score"].alarm)
 
@@ -190,13 +191,13 @@ def test_priors_can_come_from_another_folder_and_a_missing_one_is_a_clear_error(
     text = (tmp_path / "fused_model.toml").read_text().replace("calibration_median_score = ", "calibration_median_score = 1", 1)
     (tmp_path / "fused_model.toml").write_text(text)
     refitted = parse_config(f'[decision]\nmodels_dir = "{tmp_path}"\n', "test")
-    assert shipped_models(str(tmp_path)).fused["full"].calibration_median_score != shipped_models().fused["full"].calibration_median_score
+    assert shipped_models(str(tmp_path)).fused[LoadState.FULL].calibration_median_score != shipped_models().fused[LoadState.FULL].calibration_median_score
     assert refitted.load_model() == shipped_models().load
     with pytest.raises(ConfigError, match="no such model file in .*nowhere"):
         parse_config(f'[decision]\nmodels_dir = "{tmp_path / "nowhere"}"\n', "test")
 
 
-def test_the_commissioning_puts_the_structure_that_held_in_both_loads_in_force(commissioned) -> None:  # type: ignore[no-untyped-def]
+def test_the_commissioning_puts_the_structure_that_held_in_both_loads_in_force(commissioned) -> None:
     # The fragment carries [health] layout_checks: the checks of the sensors' places and signs that
     # held on every healthy window of both loads, so a swap after maintenance is a sensor fault.
     result, config = commissioned

@@ -3,6 +3,8 @@ named whatever filter reads the frame, the healthy frame never."""
 
 import dataclasses
 
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -202,7 +204,7 @@ def test_a_noisy_sensor_is_named_and_the_healthy_frame_never_whatever_reads_the_
     # The frame's own vibration in the top octave (a filter near Nyquist) lifts every channel's
     # density there, the hiss one channel's; a 50 Hz low-pass inside the sensors leaves nothing of
     # the frame or of their own noise up there, the hiss after it all of its own.
-    runs = {"vibration_mps2": vibration_mps2, "sensor_hz": sensor_hz}
+    runs: dict[str, Any] = {"vibration_mps2": vibration_mps2, "sensor_hz": sensor_hz}
     fit = learn_noise_floor(w for s in (1, 2, 3) for w in frame_run(s, **runs))
     assert fit is not None
     health = dataclasses.replace(HealthSettings(), noise_floor_psd=fit.psd, noise_floor_ratio=fit.ratio)

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -58,7 +60,8 @@ def commissioned(request: pytest.FixtureRequest) -> tuple[str, MonitorSettings, 
         windows += [w for w in core.process(run(part, track, speed_kmh, seed)) if judge.judge(w).health.judgeable]
     fit = learn_noise_floor(windows)
     assert fit is not None
-    learned = replace(settings, health=replace(settings.health, **{k: tuple(v) for k, v in fit.health_fields().items()}))
+    floors: dict[str, Any] = {k: tuple(v) for k, v in fit.health_fields().items()}
+    learned = replace(settings, health=replace(settings.health, **floors))
     return part, learned, run(part, "erri-high", 85.0, 33)
 
 

@@ -63,7 +63,7 @@ def _judged_share(verdicts: list[WindowVerdict]) -> float:
     return sum(v.outcome is Outcome.JUDGED for v in moving) / len(moving)
 
 
-def test_a_track_quality_the_commissioning_never_ran_is_judged_with_raised_levels_and_no_alarm(narrow) -> None:  # type: ignore[no-untyped-def]
+def test_a_track_quality_the_commissioning_never_ran_is_judged_with_raised_levels_and_no_alarm(narrow) -> None:
     # FRA class 5 shakes the frame about twice as hard as anything the commissioning ran.
     verdicts = _judge(narrow["both"], _scenario("full", 41, "fra-5", 80.0))
     assert _judged_share(verdicts) == 1.0 and not _kinds(verdicts) & ALARMS
@@ -72,20 +72,20 @@ def test_a_track_quality_the_commissioning_never_ran_is_judged_with_raised_level
     assert {v.load for v in verdicts if v.judgement is not None} == {LoadState.FULL}
 
 
-def test_speeds_below_the_commissioning_are_judged_and_raise_no_alarm(narrow) -> None:  # type: ignore[no-untyped-def]
+def test_speeds_below_the_commissioning_are_judged_and_raise_no_alarm(narrow) -> None:
     verdicts = _judge(narrow["both"], _scenario("full", 42, "erri-low", 60.0))
     assert _judged_share(verdicts) >= 0.9 and not _kinds(verdicts) & ALARMS
     assert {v.load for v in verdicts if v.judgement is not None} == {LoadState.FULL}
 
 
-def test_a_load_the_commissioning_never_ran_is_judged_against_the_population_and_raises_no_alarm(narrow) -> None:  # type: ignore[no-untyped-def]
+def test_a_load_the_commissioning_never_ran_is_judged_against_the_population_and_raises_no_alarm(narrow) -> None:
     verdicts = _judge(narrow["full"], _scenario("tare", 43, "erri-low", 80.0))
     assert _judged_share(verdicts) == 1.0 and not _kinds(verdicts) & ALARMS
     judged = [v for v in verdicts if v.judgement is not None]
     assert {v.load for v in judged} == {LoadState.TARE} and {v.judgement.baseline for v in judged if v.judgement} == {"population"}
 
 
-def test_a_fault_whose_windows_lie_outside_every_commissioned_load_state_is_reported(narrow) -> None:  # type: ignore[no-untyped-def]
+def test_a_fault_whose_windows_lie_outside_every_commissioned_load_state_is_reported(narrow) -> None:
     # A broken rear outer coil in the empty wagon moves its load vector (how the modes share their
     # power between the bands) beyond what either commissioned state's windows reached: the gate
     # that once left such windows unjudged kept this fault silent. Judged, it is confirmed.

@@ -31,7 +31,7 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def client():  # type: ignore[no-untyped-def]
+def client():
     from bogiemon.fleet.analyze import local_client
 
     c = local_client(2)
@@ -68,7 +68,7 @@ def _comparable(event: Event) -> tuple[object, ...]:
             json.dumps(dict(event.details), sort_keys=True))  # fmt: skip
 
 
-def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_path: Path, runs: tree.Runs, client) -> None:
     files = _fleet(tmp_path / "fleet", runs)
     analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
     judge_fleet(tmp_path / "windows", tmp_path / "judged")
@@ -88,6 +88,10 @@ def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_
     assert wagons["W1"]["state"] == "CONFIRMED" and wagons["W1"]["diagnosis"]["corners"] in (["leading-left", "trailing-right"], [])
     assert wagons["W2"]["state"] == "NORMAL"
     assert next(iter(wagons)) == "W1"  # the most urgent first
+
+
+def _nan(value: object) -> bool:
+    return isinstance(value, float) and math.isnan(value)
 
 
 def _replayed_row(verdict: WindowVerdict) -> tuple[object, ...]:
@@ -123,13 +127,13 @@ def test_replay_and_fleet_judge_give_the_same_verdict_on_every_window_of_a_day_o
 
     assert len(replayed) == len(offline) > 10 * 10
     for window, (a, b) in enumerate(zip(replayed, offline, strict=True)):
-        assert a[:3] == b[:3] and (a[3] == b[3] or math.isnan(a[3]) and math.isnan(b[3])), f"window {window}: replay {a}, fleet judge {b}"
+        assert a[:3] == b[:3] and (a[3] == b[3] or _nan(a[3]) and _nan(b[3])), f"window {window}: replay {a}, fleet judge {b}"
     assert not any(row[4] for row in replayed), "a window with a sensor problem: a boundary read as a dropout?"
     assert [_comparable(e) for e in sink.events] == [_comparable(e) for e in offline_events]
     assert "SENSOR_FAULT" not in [e.kind.value for e in sink.events] and "CONFIRMED" in [e.kind.value for e in sink.events]
 
 
-def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:
     _fleet(tmp_path / "fleet", runs)
 
     def interrupt(done: int, total: int) -> None:
@@ -165,7 +169,7 @@ def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path
     assert again.analysed == 0 and again.windows == fresh.windows
 
 
-def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.Runs, client) -> None:
     _fleet(tmp_path / "fleet", runs)
     analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
     tree.place(runs.healthy[1], tmp_path / "fleet" / "W2", "2026-11-04", "06:00")
@@ -174,7 +178,7 @@ def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.R
     assert [r.date for r in summary.results if not r.reused] == ["2026-11-04"]
 
 
-def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: tree.Runs, client) -> None:
     root = tmp_path / "fleet"
     _fleet(root, runs)
     good = tree.place(runs.healthy[0], root / "W2", "2026-11-04", "06:00")
@@ -206,7 +210,7 @@ def test_bad_inputs_are_reported_and_never_stop_the_rest(tmp_path: Path, runs: t
     assert any("3 input(s) skipped" in n for n in notes["W2"])
 
 
-def test_fleet_calibrate_learns_what_bogiemon_calibrate_learns_from_the_same_days(tmp_path: Path, runs: tree.Runs, client) -> None:  # type: ignore[no-untyped-def]
+def test_fleet_calibrate_learns_what_bogiemon_calibrate_learns_from_the_same_days(tmp_path: Path, runs: tree.Runs, client) -> None:
     root = tmp_path / "fleet"
     files = _fleet(root, runs)
     analyze_fleet(root, tmp_path / "windows", client=client)

@@ -23,7 +23,7 @@ from tests.fleet.tree import DEMO_CALIBRATION
 NOT_UTF8 = os.fsdecode(b"07\xff\xfe.csv.gz")  # what Python lists for a name whose bytes are not UTF-8
 
 
-def _reasons(issues) -> dict[str, str]:  # type: ignore[no-untyped-def]
+def _reasons(issues) -> dict[str, str]:
     return {Path(i.path).name: i.reason for i in issues}
 
 

@@ -12,6 +12,7 @@ import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -28,7 +29,7 @@ from tests.fleet import tiny
 DAY = tiny.DAYS[0]
 
 
-def _rewrite_metadata(path: Path, change: Callable[[object], object]) -> None:
+def _rewrite_metadata(path: Path, change: Callable[[Any], object]) -> None:
     """The partition's metadata changed and its digest made to match, as a careful hand would."""
     table = pq.read_table(path)
     text = json.dumps(change(json.loads(table.schema.metadata[METADATA_KEY]))).encode()
@@ -65,7 +66,7 @@ def _changed_window(path: Path) -> None:
     pq.write_table(table.set_column(table.column_names.index("end_s"), "end_s", pa.array(end_s)), path)
 
 
-DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
+DAMAGES: dict[str, tuple[Callable[[Path], object], str]] = {
     "metadata []": (lambda p: _rewrite_metadata(p, lambda _: []), "its metadata is not a JSON object"),
     "segment_starts not a list": (lambda p: _rewrite_metadata(p, lambda m: {**m, "segment_starts": "x"}), "metadata segment_starts"),
     "segment_starts in year 1": (lambda p: _rewrite_metadata(p, lambda m: {**m, "segment_starts": [[-6.2e10, 200.0, False]]}), "metadata segment_starts"),
@@ -159,13 +160,18 @@ def _judged(tmp_path: Path) -> Path:
     return tmp_path / "judged"
 
 
-JUDGED_DAMAGES: dict[str, tuple[str, Callable[[Path], None], str]] = {
+def _link_to_dev_zero(path: Path) -> None:
+    path.unlink()
+    path.symlink_to("/dev/zero")
+
+
+JUDGED_DAMAGES: dict[str, tuple[str, Callable[[Path], object], str]] = {
     "wagons.json a FIFO": ("wagons.json", _fifo, "wagons.json: not a regular file"),
-    "wagons.json a link to /dev/zero": ("wagons.json", lambda p: p.unlink() or p.symlink_to("/dev/zero"), "wagons.json: not a regular file"),
+    "wagons.json a link to /dev/zero": ("wagons.json", _link_to_dev_zero, "wagons.json: not a regular file"),
     "wagons.json a sparse GiB": ("wagons.json", lambda p: os.truncate(p, (1 << 30) + 1), "wagons.json: larger than 1 GiB"),
     "wagons.json random bytes": ("wagons.json", lambda p: p.write_bytes(b"\xff\xfe" + os.urandom(100)), "wagons.json: cannot be read"),
     "events.jsonl a FIFO": ("events.jsonl", _fifo, "events.jsonl: not a regular file"),
-    "events.jsonl a link to /dev/zero": ("events.jsonl", lambda p: p.unlink() or p.symlink_to("/dev/zero"), "events.jsonl: not a regular file"),
+    "events.jsonl a link to /dev/zero": ("events.jsonl", _link_to_dev_zero, "events.jsonl: not a regular file"),
     "events.jsonl one endless line": ("events.jsonl", lambda p: p.write_bytes(b"x" * (2 << 20)), "events.jsonl: line 1: longer than"),
     "a series a FIFO": ("series/wagon=W1/part-0.parquet", _fifo, "part-0.parquet: not a regular file"),
     "a series a folder": ("series/wagon=W1/part-0.parquet", _folder, "part-0.parquet: a folder"),
