@@ -720,9 +720,12 @@ class _ParquetReader(RecordingReader):
                         f"row group {i} holds {group.num_rows} rows, more than {MAX_PARQUET_GROUP_ROWS}; "
                         f"write it in row groups of at most that (write_parquet_recording uses {PARQUET_GROUP_ROWS})"
                     )
-                declared = max(group.column(j).total_uncompressed_size for j in range(group.num_columns))
-                if declared > group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16):
-                    self.error(f"row group {i} declares {declared} bytes for {group.num_rows} values a column: damaged, or no recording")
+                # The row group's own total, never its columns' metadata: pyarrow 26 aborts the process
+                # (a C++ exception let out of RowGroupMetaData.column()) on a column chunk whose
+                # statistics carry a definition-level histogram of the wrong size (found by make fuzz).
+                declared = group.total_byte_size
+                if declared > len(COLUMNS) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
+                    self.error(f"row group {i} declares {declared} bytes for {group.num_rows} rows: damaged, or no recording")
             self.n_samples = meta.num_rows
             first_s = last_s = None
             groups = [i for i in range(meta.num_row_groups) if meta.row_group(i).num_rows]

@@ -436,3 +436,17 @@ def test_the_survey_counts_lines_as_the_byte_by_byte_reference_in_every_short_te
         for parts in itertools.product([b"7", b"\n", b"\r"], repeat=n):
             data = b"".join(parts)
             assert _count_lines(data) == reference(data), data
+
+
+def test_a_parquet_footer_whose_histogram_would_abort_pyarrow_is_one_clear_error() -> None:
+    # Found by make fuzz (recording-parquet, seed 17, input 534): a column chunk's statistics with a
+    # definition-level histogram of the wrong size made pyarrow 26 abort the process (SIGABRT) when
+    # the open read that column's metadata. Replayed in its own process: an abort would kill ours.
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    saved = Path(__file__).parent / "data" / "parquet-histogram-abort.json"
+    done = subprocess.run([sys.executable, str(repo / "bench" / "fuzz.py"), "--replay", str(saved)], cwd=repo, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "clear RecordingError" in done.stdout and "not a readable Parquet file" in done.stdout
