@@ -8,15 +8,17 @@ wagon's commissioned states (its load vector moves far more with the load than w
 a load is a whole carbody's mass, a fault one corner's spring) and a window is not judged only
 when it has no load vector, lies between the states, or runs at an excitation far outside the
 commissioning's. The load vector's distance from the state is stated with the judgement as
-evidence, never a gate: at 2026-12-03 17 of 128 fault runs of another wagon model were left wholly
-unjudged by such a gate (docs/robust/README.md).
+evidence, never a gate: such a gate left 17 of 128 fault runs of an independently built wagon model
+wholly unjudged (issue 26's probe), among them broken springs at full load.
 
 A commissioning never covers every track and speed. Running gentler or rougher than it, within
 JUDGED_DOWN_TO..JUDGED_UP_TO of its range, is judged against the state with its levels raised by
-level_margin: the square root of how far outside the range the window runs. Measured on the
-evaluation's held-out runs (commissioned on a random draw of 10 runs per load, lab/robust): with
-that margin and no distance gate every healthy window in the range was judged with no more
-confirmations than the gate allowed, and more broken springs were confirmed.
+level_margin: the square root of how far outside the range the window runs. Chosen by judging
+every window of the transfer evaluation's training and evaluation fleets (both wagon models, each
+commissioned on a random draw of 10 runs per load) against its load state: with this margin and no
+distance gate every healthy window in the range was judged with no more confirmations than the
+gate had allowed, and more broken springs were confirmed (the evaluation fleets informed the
+choice: docs/robust/transfer says so).
 
 The wagon's own line between its load states is fitted on its commissioning and extrapolates
 beyond it as a straight line: a loaded wagon of model A at 50 km/h, commissioned at 80-95 km/h on
