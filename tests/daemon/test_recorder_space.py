@@ -15,8 +15,9 @@ import subprocess
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, MutableMapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -375,19 +376,25 @@ class GatedSource(MemorySource):
         return super().read(timeout_s)
 
 
-def test_the_next_start_on_a_disk_full_of_recordings_gives_their_room_back_and_commits_the_confirmed(tmpfs: Mount, tmp_path: Path) -> None:
-    # The finding: the recordings of a run at the default cap filled the state's file system; the
-    # next start held the CONFIRMED, lost it and exited 3.
+def _disk_full_of_recordings(tmpfs: Mount, free_left_bytes: int) -> tuple[Path, Path, Path, list[str]]:
+    """A 24 MiB state file system holding a store and an earlier run's recordings, the last (a
+    confirmation's) grown until free_left_bytes are free: (disk, state, recordings, their names)."""
     disk = tmpfs("disk", "24m")
     state, recordings = disk / "state", disk / "state" / "recordings"
     EventStore(state).close()
     earlier = earlier_recordings(recordings, [1_000_000] * 24)
     earlier.append("20200201T000000Z_confirmed.csv.gz")
-    fill_until_free(recordings / earlier[-1], 48 * 1024)  # room for the store to open (its 32 KiB -shm), not to commit
+    fill_until_free(recordings / earlier[-1], free_left_bytes)
+    return disk, state, recordings, earlier
+
+
+def _run_the_service_with_its_recorder(tmp_path: Path, state: Path, recordings: Path) -> tuple[Service, list[MutableMapping[str, Any]]]:
+    """The service with its recorder over a broken spring's 30 s; it must store the SUSPECTED and
+    the CONFIRMED with nothing logged at crit."""
     config_path = tmp_path / "bogiemon.toml"
     config_path.write_text(short_windows_config(state_dir=state) + f'[recorder]\nenabled = true\ndirectory = "{recordings}"\n')
-    reserve = settings_of(config_on(state, recordings)).reserve_bytes
     blocks = as_blocks(bogie_accel(30, seed=2, pitch_roll_coupling=1.0), start_s=START_S)
+    service: Service
 
     def source(config: BogiemonConfig) -> GatedSource:
         assert service.recorder is not None
@@ -398,6 +405,15 @@ def test_the_next_start_on_a_disk_full_of_recordings_gives_their_room_back_and_c
         assert service.run() == EXIT_OK
     assert [e.kind.value for e in stored_events(state)] == ["SUSPECTED", "CONFIRMED"]
     assert not [e for e in logs if e["log_level"] == "critical"]
+    return service, logs
+
+
+def test_the_next_start_on_a_disk_full_of_recordings_gives_their_room_back_and_commits_the_confirmed(tmpfs: Mount, tmp_path: Path) -> None:
+    # The finding: the recordings of a run at the default cap filled the state's file system; the
+    # next start held the CONFIRMED, lost it and exited 3.
+    disk, state, recordings, earlier = _disk_full_of_recordings(tmpfs, 48 * 1024)  # room for the store to open (its 32 KiB -shm), not to commit
+    reserve = settings_of(config_on(state, recordings)).reserve_bytes
+    service, logs = _run_the_service_with_its_recorder(tmp_path, state, recordings)
     assert service.recorder is not None
     counters = service.recorder.counters
     kept = sorted(n for n in os.listdir(recordings) if n.startswith("2020"))
@@ -435,26 +451,9 @@ def test_before_the_store_opens_the_reserve_is_given_back_on_a_disk_filled_to_th
 def test_the_service_gives_the_reserve_back_before_it_opens_the_store_on_a_disk_filled_to_the_last_page(tmpfs: Mount, tmp_path: Path) -> None:
     # As above, through the service: without the give-back before the store opens, the store's
     # -shm finds no room, the start is refused, and no recorder ever runs to make room.
-    disk = tmpfs("disk", "24m")
-    state, recordings = disk / "state", disk / "state" / "recordings"
-    EventStore(state).close()
-    earlier = earlier_recordings(recordings, [1_000_000] * 24)
-    earlier.append("20200201T000000Z_confirmed.csv.gz")
-    fill_until_free(recordings / earlier[-1], 0)
-    config_path = tmp_path / "bogiemon.toml"
-    config_path.write_text(short_windows_config(state_dir=state) + f'[recorder]\nenabled = true\ndirectory = "{recordings}"\n')
+    disk, state, recordings, _ = _disk_full_of_recordings(tmpfs, 0)
     reserve = settings_of(config_on(state, recordings)).reserve_bytes
-    blocks = as_blocks(bogie_accel(30, seed=2, pitch_roll_coupling=1.0), start_s=START_S)
-
-    def source(config: BogiemonConfig) -> GatedSource:
-        assert service.recorder is not None
-        return GatedSource(blocks, service.recorder.ready)
-
-    service = Service(config_path, source, sinks=[])
-    with structlog.testing.capture_logs() as logs:
-        assert service.run() == EXIT_OK
-    assert [e.kind.value for e in stored_events(state)] == ["SUSPECTED", "CONFIRMED"]
-    assert not [e for e in logs if e["log_level"] == "critical"]
+    _run_the_service_with_its_recorder(tmp_path, state, recordings)
     assert free_bytes(disk) >= reserve
 
 
