@@ -28,21 +28,11 @@ from bogiemon.drivers.base import HealthCounters, SensorStatus
 from bogiemon.drivers.can_frames import BUS_OFF, ERROR, REMOTE, RX_OVERFLOW, FrameBatch
 from bogiemon.drivers.candb import CanLayout, MessageCodec
 from bogiemon.drivers.segments import RESTART_AFTER_BEHIND, SampleQueue, SequenceTracker, TimestampGuard
+from bogiemon.drivers.counters import counters
 
-CAN_COUNTERS = (
-    "duplicates",  # a frame with the counter of the one just accepted: dropped
-    "out_of_order",  # a frame whose counter is behind the last accepted one: dropped
-    "lost_samples",  # sampling instants missing inside counter jumps (a lower bound)
-    "unknown_ids",  # frames whose identifier is in no message of the DBC, or no CAN identifier (also bad_frames)
-    "other_dbc_frames",  # frames of the DBC's other messages (alarms, heartbeats): expected, ignored
-    "wrong_length",  # a layout identifier with the wrong data length (also bad_frames)
-    "remote_frames",  # remote-request frames (also bad_frames)
-    "error_frames",  # error frames the controller reported
-    "bus_off",  # of those, bus-off: the controller stopped sending and receiving
-    "rx_overflow",  # of those, the controller's own receive FIFO overflowed
-    "dropped_by_kernel",  # frames the socket's receive buffer had no room for (socketcan)
-    "disconnects",  # the bus or interface went away under the source
-    "open_failures",  # attempts to (re)open the bus that failed
+CAN_COUNTERS = counters(
+    "duplicates", "out_of_order", "lost_samples", "unknown_ids", "other_dbc_frames", "wrong_length", "remote_frames",
+    "error_frames", "bus_off", "rx_overflow", "dropped_by_kernel", "disconnects", "open_failures",
 )
 
 

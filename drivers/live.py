@@ -20,11 +20,9 @@ from typing import Generic, TypeVar
 from bogiemon.drivers.base import Block, HealthCounters, Source
 from bogiemon.drivers.reconnect import Backoff
 from bogiemon.drivers.segments import SampleQueue
+from bogiemon.drivers.counters import counters
 
-LIVE_COUNTERS = (
-    "disconnects",  # the device failed under the source
-    "open_failures",  # attempts to (re)open the device that failed
-)
+LIVE_COUNTERS = counters("disconnects", "open_failures")
 # How long a read waits at the least while the device is closed and its reopening not yet due:
 # a wait of 0 would spin.
 MIN_WAIT_S = 1e-3

@@ -34,13 +34,14 @@ from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.files import FileKind, TextLines, open_untrusted
 from bogiemon.drivers.recording import RecordingError, is_sample_recording_name, open_recording_reader
 from bogiemon.drivers.segments import SampleQueue
+from bogiemon.drivers.counters import counters
 
 # The longest silence of a CAN log a paced replay waits out (a wagon standing at a station, or a
 # stamp far ahead of its neighbours): the decoder starts a new segment after a pause of half a
 # counter period whatever its length, so waiting longer would change nothing but the wall time.
 MAX_PACED_PAUSE_S = 10.0
-REPLAY_COUNTERS = ("unreadable_entries",)  # log entries python-can could not parse (also bad_frames)
-RECORDING_COUNTERS = ("clipped_samples",)  # samples beyond the converter's range, clipped to its full scale
+REPLAY_COUNTERS = counters("unreadable_entries")
+RECORDING_COUNTERS = counters("clipped_samples")
 # A CAN log: a day of a hub at 500 Hz is about 3 GiB of candump -L text. Lines of a log are a
 # hundred bytes; a longer one than this is no frame, and is counted and skipped unread.
 CAN_LOG_FILE = FileKind(

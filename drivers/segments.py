@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import MAX_TIME_S, Block, HealthCounters, SensorStatus, plausible_time
+from bogiemon.drivers.counters import counters
 
 # A stream whose counter runs this many frames in a row behind the last accepted one has
 # restarted (a sensor reset or a power cycle): begin a new segment instead of dropping forever.
@@ -31,10 +32,7 @@ TIME_STAMP_TOLERANCE_S = 0.1
 # the clock having stepped back (NTP stepping a gateway's wall clock, which the kernel's receive
 # stamps follow), not a bad stamp: from then on the guard follows the new clock.
 CLOCK_STEP_AFTER = 8
-TIMESTAMP_COUNTERS = (
-    "bad_timestamps",  # frames whose time stamp is not finite, beyond MAX_TIME_S or behind (also bad_frames)
-    "clock_steps",  # times the receive clock stepped back and the guard followed it
-)
+TIMESTAMP_COUNTERS = counters("bad_timestamps", "clock_steps")
 
 
 class TimestampGuard:

@@ -26,16 +26,9 @@ import serial
 from bogiemon.drivers.live import LiveSource
 from bogiemon.drivers.segments import SequenceTracker, TimestampGuard
 from bogiemon.drivers.serial_protocol import PACKET_SIZE, SEQUENCE_MODULUS, PacketParser
+from bogiemon.drivers.counters import counters
 
-SERIAL_COUNTERS = (
-    "crc_errors",  # sync words followed by a packet whose CRC fails (also bad_frames)
-    "garbage_bytes",  # bytes skipped while resynchronising
-    "duplicates",  # a packet with the sequence number of the one just accepted: dropped
-    "out_of_order",  # a packet whose sequence number is behind the last accepted one: dropped
-    "lost_samples",  # instants missing inside sequence jumps
-    "disconnects",  # the port failed under the source (adapter unplugged)
-    "open_failures",  # attempts to (re)open the port that failed
-)
+SERIAL_COUNTERS = counters("crc_errors", "garbage_bytes", "duplicates", "out_of_order", "lost_samples", "disconnects", "open_failures")
 # The sequence counter wraps after 131 s at 500 Hz; half of that is far beyond any pause the
 # line can have without the port failing, so silence only matters for a stalled board.
 MAX_SILENCE_S = 5.0
