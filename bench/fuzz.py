@@ -48,6 +48,7 @@ BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH))
 
 import fuzz_core  # noqa: E402  (stdlib only: the parent stays light, the targets load in the workers)
+from fuzz_progress import SLOT_SIZE, ProgressSlot  # noqa: E402
 
 REPO = BENCH.parent
 sys.path.insert(1, str(REPO))  # the daemon's targets build their signals with tests/daemon/synthetic.py
@@ -256,8 +257,9 @@ class Tally:
         return sum(e["count"] for e in self.findings["wrong"].values())
 
 
-def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: int) -> None:
+def _worker(conn: multiprocessing.connection.Connection, cells: Any, seed: int) -> None:
     """A worker process: runs batches of one target's inputs, reporting counts as it goes."""
+    progress = ProgressSlot(cells)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     signal.signal(signal.SIGALRM, _on_alarm)
     devnull = os.open(os.devnull, os.O_WRONLY)  # what the code under test prints or logs is not ours
@@ -296,7 +298,7 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
             tally, sent_sizes = Tally(), dict[tuple[str, str], int]()
             last_report = time.monotonic()
             for index in range(start, stop):
-                progress[0], progress[1] = index, time.monotonic()
+                progress.begin(index)
                 try:
                     data = target.generate(fuzz_core.input_rng(seed, name, index))
                 except BaseException:  # noqa: BLE001 - a bug of the harness, not a finding
@@ -327,10 +329,10 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
                     tally.add_finding(outcome.kind, outcome.key, 1, example)
                 now = time.monotonic()
                 if now - last_report >= REPORT_EVERY_S or index == stop - 1:
-                    progress[1] = 0.0  # between inputs: not running one
+                    progress.idle()  # between inputs: not running one
                     conn.send(("tally", tally, index + 1))
                     tally, last_report = Tally(), now
-            progress[1] = 0.0
+            progress.idle()
             conn.send(("done", None, stop))
     finally:
         fuzz_core.remove_scratch(os.getpid())  # forked workers skip atexit
@@ -342,8 +344,9 @@ def _worker(conn: multiprocessing.connection.Connection, progress: Any, seed: in
 class Worker:
     def __init__(self, mp: Any, seed: int) -> None:
         self.conn, child = mp.Pipe()
-        self.progress = mp.RawArray("d", 2)
-        self.process = mp.Process(target=_worker, args=(child, self.progress, seed), daemon=True)
+        cells = mp.RawArray("d", SLOT_SIZE)
+        self.progress = ProgressSlot(cells)
+        self.process = mp.Process(target=_worker, args=(child, cells, seed), daemon=True)
         self.process.start()
         child.close()
         self.job: tuple[int, int, int] | None = None  # (start, stop, reported up to)
@@ -384,7 +387,6 @@ def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: 
             if w.job is None and pending:
                 start, stop = pending.popleft()
                 w.job = (start, stop, start)
-                w.progress[1] = 0.0
                 w.conn.send((spec.name, start, stop, spec.limit_s))
         busy = [w for w in workers if w.job is not None]
         ready = multiprocessing.connection.wait([w.conn for w in busy], timeout=0.25)
@@ -409,7 +411,7 @@ def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: 
                 else:
                     w.job = None
                 continue
-            running_s = time.monotonic() - w.progress[1] if w.progress[1] > 0 else 0.0
+            running_s = w.progress.running_s(time.monotonic())
             if not w.process.is_alive():
                 workers[i] = _replace(w, mp, seed, spec, tally, pending, "crash", "the worker process died")
             elif running_s > hard_limit_s:
@@ -421,7 +423,7 @@ def _replace(w: Worker, mp: Any, seed: int, spec: Spec, tally: Tally, pending: d
     """A worker stuck in one input or dead: count that input, requeue the rest of its batch, start another."""
     assert w.job is not None
     start, stop, reported = w.job
-    index = int(w.progress[0])
+    index = w.progress.last_index()
     if kind == "crash":
         w.process.join(2)  # it is going: let it tell how
     code = w.process.exitcode

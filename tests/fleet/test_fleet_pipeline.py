@@ -133,31 +133,31 @@ def test_replay_and_fleet_judge_give_the_same_verdict_on_every_window_of_a_day_o
     assert "SENSOR_FAULT" not in [e.kind.value for e in sink.events] and "CONFIRMED" in [e.kind.value for e in sink.events]
 
 
-def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:
-    _fleet(tmp_path / "fleet", runs)
+def _interrupt_after_the_first(done: int, total: int) -> None:
+    if done == 1:
+        raise KeyboardInterrupt
 
-    def interrupt(done: int, total: int) -> None:
-        if done == 1:
-            raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt):
-        analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client, progress=interrupt)
-    # A wagon-day already running when the interrupt came ends and writes its partition: wait for
-    # the workers to go idle before counting (counting at once raced with it, seen once in CI).
-    deadline_s = time.monotonic() + 600.0
-    while any(client.processing().values()) and time.monotonic() < deadline_s:
-        time.sleep(0.05)
-    written = sorted((tmp_path / "windows").glob("wagon=*/date=*/part-0.parquet"))
-    assert 1 <= len(written) < 4
+def _workers_idle(client) -> bool:
+    """No task runs on any worker, cancelled ones included: a task cancelled while it ran leaves
+    the scheduler at once (client.processing() no longer lists it) but its thread runs on and
+    writes its partition; the workers' own count of executing tasks still holds it."""
+    executing = client.run(lambda dask_worker: dask_worker.state.executing_count)
+    return not any(executing.values()) and not any(client.processing().values())
+
+
+def _resumes_without_redoing(tmp_path: Path, written: list[Path], **how: object) -> None:
+    """The resumed analysis reuses what the interrupted one wrote, untouched, and does the rest;
+    its partitions equal a fresh analysis' and a third run has nothing to do."""
     mtimes = {p: p.stat().st_mtime_ns for p in written}
     # A run killed while writing leaves a temporary file: cleaned, never read as a partition.
     stale = temporary_name(written[0])
     stale.write_bytes(b"half a parquet file")
 
-    resumed = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
-    fresh = analyze_fleet(tmp_path / "fleet", tmp_path / "fresh", client=client)
+    resumed = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", **how)  # type: ignore[arg-type]
+    fresh = analyze_fleet(tmp_path / "fleet", tmp_path / "fresh", **how)  # type: ignore[arg-type]
 
-    assert resumed.analysed == 4 - len(written) and resumed.reused == len(written)
+    assert (resumed.analysed, resumed.reused) == (4 - len(written), len(written))
     assert all(p.stat().st_mtime_ns == mtimes[p] for p in written)
     assert not stale.exists()
     for wagon_id, date in (("W1", "2026-11-02"), ("W1", "2026-11-03"), ("W2", "2026-11-02"), ("W2", "2026-11-03")):
@@ -165,8 +165,38 @@ def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path
         b = pq.read_table(partition_path(tmp_path / "fresh", wagon_id, date))
         assert a.num_rows == b.num_rows > 0
         assert a.column("end_s").to_pylist() == b.column("end_s").to_pylist()
-    again = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
+    again = analyze_fleet(tmp_path / "fleet", tmp_path / "windows", **how)  # type: ignore[arg-type]
     assert again.analysed == 0 and again.windows == fresh.windows
+
+
+def _partitions(tmp_path: Path) -> list[Path]:
+    return sorted((tmp_path / "windows").glob("wagon=*/date=*/part-0.parquet"))
+
+
+def test_an_interrupted_analysis_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs) -> None:
+    # In this process the interrupt lands exactly after the first partition: one written, three to do.
+    _fleet(tmp_path / "fleet", runs)
+    with pytest.raises(KeyboardInterrupt):
+        analyze_fleet(tmp_path / "fleet", tmp_path / "windows", runner=InProcess(), progress=_interrupt_after_the_first)
+    written = _partitions(tmp_path)
+    assert len(written) == 1
+    _resumes_without_redoing(tmp_path, written, runner=InProcess())
+
+
+def test_an_analysis_interrupted_on_the_dask_cluster_resumes_without_redoing_or_duplicating(tmp_path: Path, runs: tree.Runs, client) -> None:
+    _fleet(tmp_path / "fleet", runs)
+    with pytest.raises(KeyboardInterrupt):
+        analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client, progress=_interrupt_after_the_first)
+    # The tasks already running when the interrupt came end and write their partitions whole (the
+    # rest are cancelled): count only once no worker runs a task. How many ran depends on how soon
+    # the interrupt reached the cluster, which the machine's load decides: one at least, four at most.
+    deadline_s = time.monotonic() + 600.0
+    while not _workers_idle(client):
+        assert time.monotonic() < deadline_s, "the Dask workers still ran tasks 600 s after the interrupt"
+        time.sleep(0.05)
+    written = _partitions(tmp_path)
+    assert 1 <= len(written) <= 4
+    _resumes_without_redoing(tmp_path, written, client=client)
 
 
 def test_a_new_day_is_the_only_work_of_the_next_run(tmp_path: Path, runs: tree.Runs, client) -> None:
