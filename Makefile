@@ -16,7 +16,7 @@ install: $(STAMP)
 
 # The main job on the bundled simulator: a healthy stretch, then a broken spring (about a minute).
 demo: $(STAMP)
-	$(PY) -m bogiemon.daemon.cli.main demo
+	$(PY) -m bogiemon demo
 
 # The back office on a simulated fleet (docs/fleet.md): 8 wagons x 3 days, a broken spring on two
 # of them and a noisy sensor on a third; simulate, analyze on a local Dask cluster, commission each
@@ -32,14 +32,11 @@ fleet-demo: $(STAMP)
 	@echo "make fleet-demo: the fleet report is $(abspath $(FLEET_DEMO))/report.html"
 
 # The static checks, run first by `make test`: ruff ([tool.ruff] in pyproject.toml: pyflakes,
-# pycodestyle, bugbear, pyupgrade) and mypy ([tool.mypy]: strict over detection/, drivers/ and
-# daemon/). mypy cannot read setuptools' package-dir mapping, nor follow the editable install's
-# import hook, so tests/typecheck.py builds build/typecheck/bogiemon/<folder> -> <folder>
-# links from that mapping, runs mypy through them and reports the real paths (DEVELOPERS.md).
-# Cold (empty .mypy_cache) 90 to 140 s on 2 cores as the machine is loaded, then 2 to 3 s.
+# pycodestyle, bugbear, pyupgrade) and mypy ([tool.mypy]: bogiemon/, tests/ and bench/; strict over
+# detection/, drivers/, judgement/ and daemon/). Cold (empty .mypy_cache) about 30 CPU s, then 2 to 3 s.
 lint: $(STAMP)
 	$(PY) -m ruff check .
-	$(PY) tests/typecheck.py
+	$(PY) -m mypy
 
 # First the static checks (lint above), then the house's import contract (tests/house.py: the
 # layers in pyproject.toml), then pytest.

@@ -90,7 +90,7 @@ def analyze_figures(runs: int, vs_python: str | None = None) -> list[Figure]:
         write_csv_recording(paths["csv.gz"], samples.time_s, samples.accel_mps2)
         write_parquet_recording(paths["parquet"], samples.time_s, samples.accel_mps2)
         pythons = [sys.executable] + ([vs_python] if vs_python else [])
-        commands = [[python, "-m", "bogiemon.daemon.cli.main", "analyze", str(paths[suffix])] for suffix, _ in formats for python in pythons]
+        commands = [[python, "-m", "bogiemon.cli.main", "analyze", str(paths[suffix])] for suffix, _ in formats for python in pythons]
         # From a folder without a bogiemon/ in it: each interpreter imports its own tree.
         seconds = time_interleaved(
             [functools.partial(subprocess.run, command, check=True, stdout=subprocess.DEVNULL, cwd=tmp) for command in commands], runs

@@ -46,7 +46,7 @@ from timing import Figure, table  # noqa: E402
 
 from bogiemon.daemon.config import load_config  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
-from bogiemon.daemon.verdict import WindowVerdict  # noqa: E402
+from bogiemon.judgement.verdict import WindowVerdict  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
 from bogiemon.drivers.can_source import CanBusPort, CanSource  # noqa: E402
 from bogiemon.drivers.candb import load_layout  # noqa: E402
@@ -253,7 +253,7 @@ def run_recording_subprocess(seconds: float, seed: int) -> DaemonRun:
         write_csv_recording(csv, 1.7e9 + np.arange(accel.shape[0]) / FS_HZ, accel)
         config_path = _config_file(Path(tmp), f'[source]\nkind = "replay"\npath = "{csv}"\nrealtime = true')
         proc = subprocess.Popen(
-            [sys.executable, "-m", "bogiemon.daemon.cli.main", "run", "--config", str(config_path)],
+            [sys.executable, "-m", "bogiemon.cli.main", "run", "--config", str(config_path)],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         )  # fmt: skip
         try:

@@ -90,7 +90,7 @@ def _analyze_command(recording: Path, out: Path) -> None:
     import argparse
     import contextlib
 
-    from bogiemon.daemon.cli import analyze
+    from bogiemon.cli import analyze
 
     config = recording.parent.parent / "bogiemon.toml"
     with out.open("w", encoding="utf-8") as f, contextlib.redirect_stdout(f):

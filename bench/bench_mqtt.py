@@ -26,7 +26,7 @@ from bogiemon.daemon.config import MqttConfig  # noqa: E402
 from bogiemon.daemon.delivery.connection import ConnectionSettings  # noqa: E402
 from bogiemon.daemon.delivery.listener import Listener  # noqa: E402
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings  # noqa: E402
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind  # noqa: E402
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.store import EventStore  # noqa: E402
 from tests.daemon.delivery.mqtt_broker import Broker, ensure_mosquitto  # noqa: E402

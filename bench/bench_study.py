@@ -24,7 +24,7 @@ COMMAND = "bogiemon study -o DIR"
 
 def study_minutes(quick: bool) -> float:
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "bogiemon.daemon.cli.main", "study", "-o", str(Path(tmp) / "study"), "--quiet"]
+        cmd = [sys.executable, "-m", "bogiemon.cli.main", "study", "-o", str(Path(tmp) / "study"), "--quiet"]
         t0 = time.perf_counter()
         subprocess.run([*cmd, "--quick"] if quick else cmd, check=True, stdout=subprocess.DEVNULL)
         return (time.perf_counter() - t0) / 60.0

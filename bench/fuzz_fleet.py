@@ -38,7 +38,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 import fuzz_core
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.drivers.recording import write_csv_recording, write_parquet_recording
 from bogiemon.fleet.analyze import analyze_fleet
 from bogiemon.fleet.cluster import InProcess

@@ -23,7 +23,7 @@ import time
 from typing import Any
 
 import fuzz_core
-from bogiemon.daemon.cli.listen import format_received
+from bogiemon.cli.listen import format_received
 from bogiemon.daemon import messages as schema
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.listener import Listener, ReceivedStore

@@ -44,7 +44,7 @@ import structlog
 import fuzz_core
 
 from bogiemon.daemon.config import BogiemonConfig, parse_config
-from bogiemon.daemon.events import Event, EventKind
+from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.monitor import MemoryEventLog, Monitor
 from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings, keep_the_reserve_free
 from bogiemon.daemon.store import EventStore

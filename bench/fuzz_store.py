@@ -21,8 +21,8 @@ import struct
 from typing import Any
 
 import fuzz_core
-from bogiemon.daemon.cli.events import format_event
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.cli.events import format_event
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.daemon.store import DB_NAME, EventStore
 from bogiemon.daemon.store_file import SCHEMA_VERSION
 

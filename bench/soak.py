@@ -70,7 +70,7 @@ from soak_schedule import FS_HZ, HOUR_S, Schedule, day_schedule, short_schedule 
 
 from bogiemon.daemon.config import BogiemonConfig, load_config  # noqa: E402
 from bogiemon.drivers.atomic import write_text_atomically  # noqa: E402
-from bogiemon.daemon.events import EventKind  # noqa: E402
+from bogiemon.judgement.events import EventKind  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
 from bogiemon.daemon.store import EventStore  # noqa: E402

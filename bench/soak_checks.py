@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from soak_feed import Feed, Lifetime  # noqa: E402
 from soak_schedule import FS_HZ, HOUR_S, T0_S, Phase, Schedule  # noqa: E402
 
-from bogiemon.daemon.events import Event, EventKind  # noqa: E402
+from bogiemon.judgement.events import Event, EventKind  # noqa: E402
 
 WARMUP_H = 2.0
 RSS_SLOPE_BOUND_MB_PER_H = 1.0

@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from soak_schedule import FS_HZ, HOUR_S, T0_S, Action, Phase, Schedule  # noqa: E402
 
 from bogiemon.daemon.config import load_config  # noqa: E402
-from bogiemon.daemon.decision import Level  # noqa: E402
-from bogiemon.daemon.verdict import WindowVerdict  # noqa: E402
+from bogiemon.judgement.decision import Level  # noqa: E402
+from bogiemon.judgement.verdict import WindowVerdict  # noqa: E402
 from bogiemon.drivers.atomic import write_text_atomically  # noqa: E402
 from bogiemon.daemon.notify import Notifier  # noqa: E402
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, SensorStatus, Source  # noqa: E402

@@ -13,46 +13,33 @@ from tests import house
 
 RULES = textwrap.dedent(
     """
-    [tool.setuptools.package-dir]
-    "bogiemon.detection" = "detection"
-    "bogiemon.daemon" = "daemon"
-    "bogiemon.daemon.cli" = "daemon/cli"
-    "bogiemon.simulator" = "simulator"
-    "bogiemon.lab" = "lab"
-    "bogiemon.fleet" = "fleet"
+    [tool.bogiemon.house]
+    layers = ["cli", "fleet | lab", "daemon", "judgement | simulator", "drivers | detection"]
+
+    [[tool.bogiemon.house.only]]
+    layer = "judgement"
+    of = "drivers"
+    targets = ["drivers.base"]
+    why = "the window and its status bits"
 
     [[tool.bogiemon.house.never]]
     layer = "fleet"
     targets = ["daemon.delivery"]
     why = "not the gateway's delivery stack"
 
-    [[tool.bogiemon.house.never]]
-    layer = "detection"
-    targets = ["daemon", "simulator", "lab"]
-    why = "the pure core"
-
-    [[tool.bogiemon.house.never]]
-    layer = "daemon"
-    targets = ["lab"]
-    why = "the product never loads the lab"
-
     [[tool.bogiemon.house.lazily]]
     layer = "daemon"
     targets = ["simulator"]
     why = "only when a command needs it"
-
-    [[tool.bogiemon.house.only_from]]
-    layer = "lab"
-    targets = ["bogiemon.daemon.cli.study"]
-    why = "from its command alone"
     """
 )
+LAYERS = ("cli", "fleet", "lab", "daemon", "judgement", "simulator", "drivers", "detection")
 
 
 def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
     (tmp_path / "pyproject.toml").write_text(RULES, encoding="utf-8")
-    for name, text in {"detection/__init__.py": "", "daemon/__init__.py": "", "daemon/cli/__init__.py": "",
-                       "simulator/__init__.py": "", "lab/__init__.py": "", "fleet/__init__.py": "", **files}.items():  # fmt: skip
+    base = {f"bogiemon/{layer}/__init__.py": "" for layer in LAYERS} | {"bogiemon/daemon/delivery/__init__.py": ""}
+    for name, text in {**base, **files}.items():
         path = tmp_path / name
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(textwrap.dedent(text), encoding="utf-8")
@@ -71,17 +58,31 @@ def test_the_check_in_make_test_passes_on_the_project() -> None:
     assert "modules keep the layers" in proc.stdout
 
 
+def test_the_project_names_every_layer_of_its_package_in_the_contract() -> None:
+    layers = {path.parent.name for path in (house.ROOT / "bogiemon").glob("*/__init__.py")}
+    problems, _ = house.check()
+    assert layers >= {"cli", "judgement", "daemon", "drivers", "detection", "fleet", "lab", "simulator", "config"}
+    assert not [p for p in problems if "is not in [tool.bogiemon.house] layers" in p]
+
+
 @pytest.mark.parametrize(
     ("name", "text", "broken"),
     [
-        ("detection/core.py", "from bogiemon.daemon.config import load_config\n", "'detection never imports daemon': the pure core"),
-        ("detection/core.py", "def f():\n    import bogiemon.lab.study\n", "'detection never imports lab': the pure core"),
-        ("daemon/service.py", "from bogiemon.simulator import simulate\n", "'daemon imports simulator only inside a function'"),
-        ("daemon/service.py", "def f():\n    from bogiemon.lab import study\n", "'daemon never imports lab'"),
-        ("daemon/cli/study.py", "from bogiemon.lab import study\n", "'lab is imported only by bogiemon.daemon.cli.study, inside a function'"),
-        ("simulator/run.py", "from ..lab import study\n", "'lab is imported only by bogiemon.daemon.cli.study, inside a function'"),
-        ("fleet/judge.py", "from bogiemon.daemon.delivery.publisher import send\n", "'fleet never imports daemon.delivery'"),
-        ("fleet/judge.py", "def f():\n    import bogiemon.daemon.delivery\n", "'fleet never imports daemon.delivery'"),
+        # The command line is on top: nothing imports it, not even inside a function.
+        ("bogiemon/daemon/service.py", "def f():\n    from bogiemon.cli import main\n", "'daemon never imports cli, a layer above it'"),
+        ("bogiemon/fleet/judge.py", "from bogiemon.cli.fleet import run\n", "'fleet never imports cli, a layer above it'"),
+        # The verdict sits below the service.
+        ("bogiemon/judgement/verdict.py", "from bogiemon.daemon.monitor import Monitor\n", "'judgement never imports daemon, a layer above it'"),
+        ("bogiemon/judgement/verdict.py", "from ..daemon import monitor\n", "'judgement never imports daemon, a layer above it'"),
+        ("bogiemon/judgement/verdict.py", "from bogiemon.drivers.recording import read\n", "'judgement imports of drivers only drivers.base'"),
+        ("bogiemon/detection/core.py", "def f():\n    import bogiemon.judgement.verdict\n", "'detection never imports judgement, a layer above it'"),
+        ("bogiemon/simulator/run.py", "from bogiemon.judgement import verdict\n", "'simulator and judgement are siblings and never import each other'"),
+        ("bogiemon/fleet/judge.py", "from bogiemon.lab import study\n", "'fleet and lab are siblings and never import each other'"),
+        ("bogiemon/daemon/service.py", "from bogiemon.simulator import simulate\n", "'daemon imports simulator only inside a function'"),
+        ("bogiemon/fleet/judge.py", "from bogiemon.daemon.delivery.publisher import send\n", "'fleet never imports daemon.delivery'"),
+        ("bogiemon/fleet/judge.py", "def f():\n    import bogiemon.daemon.delivery\n", "'fleet never imports daemon.delivery'"),
+        ("bogiemon/fleet/judge.py", "from bogiemon.daemon import delivery\n", "'fleet never imports daemon.delivery'"),
+        ("bogiemon/tools/x.py", "from bogiemon.daemon import config\n", "the layer 'tools' is not in [tool.bogiemon.house] layers"),
     ],
 )
 def test_a_wrong_import_is_named_with_its_file_line_and_broken_layer(tmp_path: Path, name: str, text: str, broken: str) -> None:
@@ -90,20 +91,36 @@ def test_a_wrong_import_is_named_with_its_file_line_and_broken_layer(tmp_path: P
     assert any(broken in p for p in problems), problems
 
 
-def test_lazy_imports_where_allowed_and_type_checking_imports_pass(tmp_path: Path) -> None:
+def test_imports_down_the_layers_and_lazy_ones_where_allowed_pass(tmp_path: Path) -> None:
     files = {
-        "daemon/service.py": "def f():\n    from bogiemon.simulator import simulate\n",
-        "daemon/cli/study.py": "def run():\n    from bogiemon.lab import study\n",
-        "detection/core.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from bogiemon.daemon import config\n",
-        "lab/plan.py": "from bogiemon.daemon import config\nfrom bogiemon.simulator import run\n",
+        "bogiemon/cli/main.py": "from bogiemon.lab import study\nfrom bogiemon.fleet import judge\nfrom bogiemon.simulator import run\n",
+        "bogiemon/daemon/service.py": "from bogiemon.judgement import verdict\ndef f():\n    from bogiemon.simulator import simulate\n",
+        "bogiemon/judgement/verdict.py": "from bogiemon.drivers.base import Block\nfrom bogiemon.detection import core\n",
         # A dotted target names that part alone: the rest of its layer stays open.
-        "fleet/judge.py": "from bogiemon.daemon import messages\nfrom bogiemon.daemon.deliveryman import x\n",
+        "bogiemon/fleet/judge.py": "from bogiemon.daemon import messages\nfrom bogiemon.daemon.deliveryman import x\n",
+    }
+    assert house.check(_tree(tmp_path, files))[0] == []
+
+
+def test_an_import_cycle_is_refused_even_when_one_side_is_for_the_type_checker(tmp_path: Path) -> None:
+    files = {
+        "bogiemon/judgement/health.py": "from bogiemon.judgement.gating import Gate\n",
+        "bogiemon/judgement/gating.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from bogiemon.judgement.health import HealthSettings\n",
+    }
+    problems, _ = house.check(_tree(tmp_path, files))
+    assert problems == ["bogiemon/judgement/gating.py: an import cycle (TYPE_CHECKING imports counted): bogiemon.judgement.gating <-> bogiemon.judgement.health"]
+
+
+def test_a_lazy_import_back_is_no_cycle(tmp_path: Path) -> None:
+    files = {
+        "bogiemon/daemon/sources.py": "def open_simulated():\n    from bogiemon.daemon.simsource import open_it\n",
+        "bogiemon/daemon/simsource.py": "from bogiemon.daemon.sources import Kind\n",
     }
     assert house.check(_tree(tmp_path, files))[0] == []
 
 
 def test_a_broken_layer_fails_the_command_with_one_line_per_import(tmp_path: Path) -> None:
-    root = _tree(tmp_path, {"detection/core.py": "import bogiemon.daemon\nimport bogiemon.simulator\n"})
+    root = _tree(tmp_path, {"bogiemon/detection/core.py": "import bogiemon.daemon\nimport bogiemon.simulator\n"})
     code = f"import sys; sys.path.insert(0, {str(house.ROOT)!r}); from tests import house; house.ROOT = __import__('pathlib').Path({str(root)!r}); sys.exit(house.main())"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 1

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.calibrate import MIN_WINDOWS, CalibrationError, calibrate
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.health import assess_window
-from bogiemon.daemon.models import coupling_features
+from bogiemon.judgement.health import assess_window
+from bogiemon.judgement.models import coupling_features
 from bogiemon.detection import IndicatorStream
 from bogiemon.drivers.recording import read_csv_recording
 from bogiemon.simulator import Scenario, simulate

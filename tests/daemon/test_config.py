@@ -7,7 +7,7 @@ import pytest
 
 from bogiemon.daemon import tomlout
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, default_config_text, load_config, parse_config
-from bogiemon.daemon.vocabulary import LoadState
+from bogiemon.judgement.vocabulary import LoadState
 from bogiemon.detection import BogieGeometry, Corner, ProcessingSettings
 
 

@@ -32,7 +32,7 @@ from bogiemon.daemon.delivery.connection import CredentialsError, read_secret, r
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.detection import IndicatorStream
 
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 THRESHOLDS = '[decision]\nmethod = "thresholds"\n'  # windows other than the fused model's 120 s / 10 s
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 
 
 # The simulated wagon's commissioning, as the demo ships it (`make demo-calibration`).

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import BogiemonConfig, ReplaySourceConfig, parse_config
-from bogiemon.daemon.events import Event
+from bogiemon.judgement.events import Event
 from bogiemon.daemon.monitor import STATE_KEY, Monitor
 from bogiemon.daemon.sources import open_source
 from bogiemon.daemon.store import EventStore, StoreError

@@ -3,7 +3,7 @@
 import io
 import json
 
-from bogiemon.daemon.events import Event, EventKind, Severity
+from bogiemon.judgement.events import Event, EventKind, Severity
 from bogiemon.daemon.logs import configure_logging
 from bogiemon.daemon.sinks import LogSink
 

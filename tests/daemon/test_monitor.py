@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import parse_config
-from bogiemon.daemon.events import EventKind
+from bogiemon.judgement.events import EventKind
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.sinks import EventSink, MemorySink
 from bogiemon.daemon.store import EventStore
-from bogiemon.daemon.vocabulary import LoadState
+from bogiemon.judgement.vocabulary import LoadState
 from tests.daemon.synthetic import as_blocks, bogie_accel, short_windows_config
 
 CONFIG = parse_config(short_windows_config(clear_after_windows=2), "test")

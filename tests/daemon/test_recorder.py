@@ -13,9 +13,9 @@ import pytest
 import structlog
 
 from bogiemon.daemon.config import BogiemonConfig, load_config, parse_config
-from bogiemon.daemon.events import EventKind
+from bogiemon.judgement.events import EventKind
 from bogiemon.daemon.monitor import Monitor
-from bogiemon.daemon.verdict import WindowVerdict
+from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.service import Service
@@ -387,7 +387,7 @@ def test_the_confirmed_snapshot_of_a_broken_spring_replayed_alone_from_a_fresh_s
     (replayed,) = [e for e in sink.events if e.kind is EventKind.CONFIRMED]
     assert replayed.time_s == pytest.approx(confirmed.time_s, abs=1e-3)  # at the same window
     # The same diagnosis offline as onboard; its corner the broken spring's, or "unknown" where the
-    # three confirming windows' 4-8 Hz couplings do not single it out (daemon/diagnosis.py).
+    # three confirming windows' 4-8 Hz couplings do not single it out (judgement/diagnosis.py).
     assert replayed.details["diagnosis"] == confirmed.details["diagnosis"]
     assert confirmed.details["diagnosis"]["corners"] in (["leading-left", "trailing-right"], [])
     assert confirmed.details["diagnosis"]["best_match"].endswith("(leading-left if softer)")

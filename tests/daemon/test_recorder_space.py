@@ -30,7 +30,7 @@ from bogiemon.daemon import recorder as recorder_module
 from bogiemon.daemon.config import BogiemonConfig, parse_config
 from bogiemon.daemon.delivery.status import status_from_monitor
 from bogiemon.daemon.messages import encode_status
-from bogiemon.daemon.events import Event, EventKind, Severity
+from bogiemon.judgement.events import Event, EventKind, Severity
 from bogiemon.daemon.monitor import STATE_KEY, Monitor
 from bogiemon.daemon.recorder import (
     DEFAULT_RESERVE_BYTES,

@@ -17,14 +17,14 @@ import pytest
 
 from bogiemon.daemon.analysis import analyze_recording, indicators_as_dict, open_recording
 from bogiemon.daemon.config import BogiemonConfig, load_config
-from bogiemon.daemon.events import EventKind
-from bogiemon.daemon.health import SensorProblem
-from bogiemon.daemon.verdict import WindowVerdict
+from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.health import SensorProblem
+from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.drivers.recording import RecordingError, read_recording, write_csv_recording, write_parquet_recording
 
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 CALIBRATION = Path(str(resources.files("bogiemon.config").joinpath("demo_calibration.toml")))
 SPRING_BREAKS_S, RUN_S = 240.0, 330.0
 BURST_AT_S, BURST_N = 60.0, 10  # 20 ms of 1e308 in a2 at 500 Hz, long before the spring breaks
@@ -161,7 +161,7 @@ def test_the_gateways_daemon_never_imports_pyarrow(tmp_path: Path) -> None:
     code = (
         "import json, sys\n"
         "import numpy as np\n"
-        "import bogiemon.daemon.cli.run\n"
+        "import bogiemon.cli.run\n"
         "from bogiemon.daemon.config import load_config\n"
         "from bogiemon.daemon.service import Service\n"
         "from bogiemon.daemon.recorder import Recorder\n"

@@ -17,7 +17,7 @@ from bogiemon.daemon.service import Service
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.daemon.sources import open_source
 from bogiemon.daemon.store import EventStore
-from bogiemon.daemon.verdict import WindowVerdict
+from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.drivers.candb import load_layout
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import RecordingError, write_csv_recording
@@ -25,7 +25,7 @@ from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_
 
 CONFIG_TEXT = short_windows_config(clear_after_windows=2)
 CONFIG = parse_config(CONFIG_TEXT, "test")
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 
 
 @pytest.fixture

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import parse_config
-from bogiemon.daemon.events import Event, EventKind, Severity
+from bogiemon.judgement.events import Event, EventKind, Severity
 from bogiemon.daemon.logs import configure_logging
 from bogiemon.daemon.monitor import Monitor
-from bogiemon.daemon.verdict import WindowVerdict
+from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.service import EXIT_OK, EXIT_STORE_FAILED, Service
@@ -35,7 +35,7 @@ from bogiemon.drivers.base import MemorySource
 from bogiemon.drivers.recording import write_csv_recording
 from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config
 
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 CONFIG_TEXT = short_windows_config(clear_after_windows=2)
 KINDS = ["SUSPECTED", "CONFIRMED", "CLEARED"]  # what the signals below give, with no fault
 
@@ -342,7 +342,7 @@ def test_events_lists_a_store_on_read_only_media(disk: Disk, writer: str) -> Non
     code = (
         "import os, sys\n"
         "from bogiemon.daemon.store import EventStore\n"
-        "from bogiemon.daemon.events import Event, EventKind, Severity\n"
+        "from bogiemon.judgement.events import Event, EventKind, Severity\n"
         "s = EventStore(sys.argv[1])\n"
         "for i in range(5):\n"
         "    s.append([Event(time_s=1.7e9 + i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash='x', event_id=str(i))])\n"

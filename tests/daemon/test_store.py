@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bogiemon.daemon.events import Event, EventKind, Severity
+from bogiemon.judgement.events import Event, EventKind, Severity
 from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
 from bogiemon.daemon.outbox import OutboxCounts
 
@@ -56,7 +56,7 @@ def test_committed_events_survive_a_killed_writer(tmp_path: Path) -> None:
     code = (
         "import os, sys\n"
         "from bogiemon.daemon.store import EventStore\n"
-        "from bogiemon.daemon.events import Event, EventKind, Severity\n"
+        "from bogiemon.judgement.events import Event, EventKind, Severity\n"
         "s = EventStore(sys.argv[1])\n"
         "for i in range(50):\n"
         "    s.append([Event(time_s=i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash='x', event_id=str(i))])\n"
@@ -296,7 +296,7 @@ def test_a_killed_writer_leaves_a_store_that_opens_read_only_with_every_commit(t
     code = (
         "import os, sys\n"
         "from bogiemon.daemon.store import EventStore\n"
-        "from bogiemon.daemon.events import Event, EventKind, Severity\n"
+        "from bogiemon.judgement.events import Event, EventKind, Severity\n"
         "s = EventStore(sys.argv[1])\n"
         "for i in range(20):\n"
         "    s.append([Event(time_s=i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash='x', event_id=str(i))])\n"
@@ -308,7 +308,7 @@ def test_a_killed_writer_leaves_a_store_that_opens_read_only_with_every_commit(t
 
 
 def test_events_lists_a_stored_time_no_calendar_holds_as_its_number(tmp_path: Path, capsys) -> None:
-    from bogiemon.daemon.cli.main import main
+    from bogiemon.cli.main import main
 
     store = EventStore(tmp_path)
     store.append([event(float("inf")), event(1e300), event(1.7e9)])  # stores written before times were checked

@@ -12,8 +12,8 @@ import can.interfaces.virtual
 import numpy as np
 import pytest
 
-from bogiemon.daemon.cli import play as play_command
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli import play as play_command
+from bogiemon.cli.main import main
 from bogiemon.drivers.candb import LAYOUTS
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.player import PlayError, play
@@ -49,6 +49,47 @@ class FakeClock:
 
     def sleep(self, seconds: float) -> None:
         self.now_s += seconds
+
+
+class StallingClock(FakeClock):
+    """The wall clock of a player thread that the machine stalls for stall_s after the first send."""
+
+    def __init__(self, stall_s: float) -> None:
+        super().__init__()
+        self.stall_s = stall_s
+
+    def stall(self) -> None:
+        self.now_s += self.stall_s
+        self.stall_s = 0.0
+
+
+def test_a_stamped_hub_stamps_each_frame_on_its_own_clock_through_a_stall() -> None:
+    # The simulated hub (daemon/simsource.py) sends on a stamped virtual bus: a player thread the
+    # machine stalls for half a second sends late, but its frames keep the hub's pace in their
+    # stamps, so the source reads no silence (a silence past 0.254 s starts a new segment).
+    clock = StallingClock(0.5)
+    receiver = can.interfaces.virtual.VirtualBus(channel="stamped-hub", receive_own_messages=False)
+    sender = can.interfaces.virtual.VirtualBus(channel="stamped-hub", preserve_timestamps=True)
+
+    class Stalls(can.BusABC):
+        def __init__(self) -> None:
+            super().__init__(channel="stamped-hub")
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            sender.send(msg)
+            clock.stall()
+
+        def _recv_internal(self, timeout):  # pragma: no cover - never received from
+            return None, False
+
+    try:
+        play(Stalls(), HUB, np.zeros((20, 3)), FS_HZ, rate=10.0, clock=clock, sleep=clock.sleep, stamp_start_s=1000.0)
+        stamps = [receiver.recv(1.0).timestamp for _ in range(20)]
+    finally:
+        receiver.shutdown()
+        sender.shutdown()
+    assert stamps == pytest.approx([1000.0 + i / FS_HZ / 10.0 for i in range(20)])
+    assert clock.now_s >= 0.5  # the sender really stalled
 
 
 @pytest.mark.parametrize("rate", [1.0, 4.0])
@@ -147,7 +188,7 @@ def test_cli_play_offers_the_layouts_of_the_dbc_module() -> None:
 )
 def test_cli_play_user_errors_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
     write_recording(tmp_path / "run.csv", 10)
-    cmd = [sys.executable, "-m", "bogiemon.daemon.cli.main", "play", str(tmp_path / "run.csv"), *args]
+    cmd = [sys.executable, "-m", "bogiemon.cli.main", "play", str(tmp_path / "run.csv"), *args]
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=60)
     assert result.returncode == 2
     assert result.stderr.startswith(message)

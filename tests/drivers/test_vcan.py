@@ -31,7 +31,7 @@ import can
 import numpy as np
 import pytest
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.drivers.base import Block
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.canbus import BusRole, open_bus
@@ -40,7 +40,7 @@ from bogiemon.drivers.replay import CanLogReplaySource
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, silences_heard, write_recording
 
 CHANNEL = "vcan0"
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 PATIENCE_S = 600.0  # the bound on one test's waiting: generous, a pass never comes near it
 POLL_S = 0.05
 # The ready file is polled often: the frames come right after it, and until the test reads them

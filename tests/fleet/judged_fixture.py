@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from bogiemon.daemon.messages import encode_event
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
 
 HOP_S = 10.0  # the daemon's default hop between windows
 FIRST_DAY = "2026-11-30"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from bogiemon.daemon.cli.main import EXIT_USER_ERROR, main
+from bogiemon.cli.main import EXIT_USER_ERROR, main
 from bogiemon.fleet.judge import judge_fleet
 from tests.fleet import tiny
 

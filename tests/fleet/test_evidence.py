@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.vocabulary import Mode
+from bogiemon.judgement.vocabulary import Mode
 from bogiemon.fleet.evidence import MIN_SPREAD, STANDS_OUT, fleet_relative, robust_distance
 from bogiemon.fleet.judge import SERIES_SCHEMA, MeanEvidence, WagonJudged
 from bogiemon.fleet.layout import Fleet, Wagon

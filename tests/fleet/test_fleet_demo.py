@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 import numpy as np
 
 from bogiemon.fleet.plot import LEFT_PX, RIGHT_PX, SCORE_BOTTOM_PX, SCORE_COLOUR, SCORE_TOP_PX, STATE_COLOURS, W_PX

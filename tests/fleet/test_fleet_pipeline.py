@@ -15,11 +15,11 @@ import pytest
 
 from bogiemon.daemon.calibrate import calibrate
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.events import Event
+from bogiemon.judgement.events import Event
 from bogiemon.drivers.atomic import temporary_name
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.sinks import EventSink
-from bogiemon.daemon.verdict import WindowVerdict
+from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.fleet.analyze import analyze_fleet, partition_path
 from bogiemon.fleet.calibrate import calibrate_wagon
 from bogiemon.fleet.cluster import InProcess

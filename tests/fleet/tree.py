@@ -7,7 +7,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.drivers.recording import read_csv_recording, write_csv_recording
 
 REPO = Path(__file__).resolve().parents[2]

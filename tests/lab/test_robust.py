@@ -12,8 +12,8 @@ import pytest
 
 from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import BogiemonConfig, load_config
-from bogiemon.daemon.events import Event
-from bogiemon.daemon.verdict import WindowJudge
+from bogiemon.judgement.events import Event
+from bogiemon.judgement.verdict import WindowJudge
 from bogiemon.detection import Corner, IndicatorStream
 from bogiemon.lab.robust.fleet import EXPECTED_PROBLEM, HEALTHY, SENSOR_DAMAGE, RunSpec, damage_sensors, scenario_for
 from bogiemon.lab.robust.wagons import make_wagon
@@ -112,7 +112,7 @@ def test_a_broken_spring_is_confirmed_at_its_corner(fleet_runs, commissioned, lo
     first = confirmed[0]
     assert first.time_s > 150.0  # after the spring broke, never before
     # The diagonal pair from the geometry, or "unknown" when the pitch-roll sign is not clear: never
-    # a pair without the corner (daemon/diagnosis.py).
+    # a pair without the corner (judgement/diagnosis.py).
     named = first.details["diagnosis"]["corners"]
     assert named == [] or corner.value in named
     assert first.details["load"] == load and first.details["load_source"] == "commissioned"

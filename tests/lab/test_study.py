@@ -13,9 +13,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy import stats
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.daemon.config import load_config
-from bogiemon.daemon.vocabulary import LoadState
+from bogiemon.judgement.vocabulary import LoadState
 from bogiemon.lab.study import (
     INDICATORS,
     RULE_MAX_FALSE_ALARM,

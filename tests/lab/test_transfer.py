@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.daemon.config import load_config
 from bogiemon.detection import IndicatorStream
 from bogiemon.lab.robust.evaluate import reuse

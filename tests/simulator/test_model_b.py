@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings
 from bogiemon.simulator import vehicle as model_a
 from bogiemon.simulator.errors import SimulationError

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bogiemon.daemon.cli.main import main
+import bogiemon
+from bogiemon.cli.main import main
 from bogiemon.detection import BogieGeometry, Corner
 from bogiemon.drivers.recording import read_csv_recording, write_csv_recording
 from bogiemon.simulator.errors import SimulationError
@@ -19,7 +20,7 @@ from bogiemon.simulator.scenario import Scenario, SpeedProfile, read_sidecar
 from bogiemon.simulator.sensors import Decimator, SensorModel
 from bogiemon.simulator.suspension import parse_fault
 
-BOGIEMON = [sys.executable, "-m", "bogiemon.daemon.cli.main"]
+BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 
 
 def test_the_default_scenario_is_a_healthy_full_load_run() -> None:
@@ -55,7 +56,7 @@ def test_a_sidecar_reproduces_the_recording_exactly(tmp_path: Path) -> None:
     sidecar = write_recording(result, tmp_path / "run.csv")
     assert sidecar == tmp_path / "run.json"
     document = json.loads(sidecar.read_text())
-    assert document["bogiemon_version"] == "0.1.0" and document["monitored_bogie"] == "leading"
+    assert document["bogiemon_version"] == bogiemon.__version__ and document["monitored_bogie"] == "leading"
     assert document["derived"]["faults"] == [f.spec() for f in scenario.faults]
     assert document["derived"]["integration_step_s"] == 2.5e-4  # 10 steps per 2.5 ms sample
     assert read_sidecar(sidecar) == scenario
@@ -284,7 +285,7 @@ def test_the_onset_is_in_the_sidecar_and_checked() -> None:
 def test_without_numba_simulate_says_which_extra_to_install(tmp_path: Path) -> None:
     code = (
         "import sys; sys.modules['numba'] = None\n"  # as on a gateway installed without the sim extra
-        "from bogiemon.daemon.cli.main import main\n"
+        "from bogiemon.cli.main import main\n"
         f"sys.exit(main(['simulate', '-o', {str(tmp_path / 'run.csv')!r}]))\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

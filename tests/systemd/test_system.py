@@ -25,8 +25,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-SUBPACKAGES = ("detection", "drivers", "daemon", "simulator", "config")
-IN_CONTAINER_SITE = "/opt/bogiemon-test/site"  # bogiemon/<subpackage>, bind-mounted
+IN_CONTAINER_SITE = "/opt/bogiemon-test/site"  # the package folder bogiemon/, bind-mounted
 IN_CONTAINER_DEPS = "/opt/bogiemon-test/deps"  # this venv's site-packages, bind-mounted
 FEED_TTY = "/run/bogiemon-feed/tty"
 
@@ -135,7 +134,7 @@ def _units(tmp: Path) -> Path:
     service = (REPO / "systemd" / "bogiemon.service").read_text()
     assert "/opt/bogiemon/bin/bogiemon run" in service
     (units / "bogiemon.service").write_text(
-        service.replace("/opt/bogiemon/bin/bogiemon run", "/usr/bin/python3 -m bogiemon.daemon.cli.main run")
+        service.replace("/opt/bogiemon/bin/bogiemon run", "/usr/bin/python3 -m bogiemon run")
     )
     (units / "bogiemon.service.d" / "system-test.conf").write_text(
         "[Service]\n"
@@ -183,7 +182,7 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (tmp / "bogiemon.toml").write_text(CONFIG)
     (tmp / "runner.sh").write_text(RUNNER)
     binds = [f"--bind={tmp}:/T", f"--bind-ro={sysconfig.get_paths()['purelib']}:{IN_CONTAINER_DEPS}"]
-    binds += [f"--bind-ro={REPO / name}:{IN_CONTAINER_SITE}/bogiemon/{name}" for name in SUBPACKAGES]
+    binds.append(f"--bind-ro={REPO / 'bogiemon'}:{IN_CONTAINER_SITE}/bogiemon")
     nspawn = [
         "systemd-nspawn", "-D", "/", "--volatile=yes", "--private-network", "--register=no", "--keep-unit",
         "--machine=bogiemon-test", *binds, "--setenv=SYSTEMD_UNIT_PATH=/T/units:", "-b",

@@ -19,7 +19,7 @@ from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings
 from bogiemon.daemon.messages import OutboxStatus, StatusMessage
 from bogiemon.daemon.delivery.transport import TransportFactory
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.daemon.store import EventStore
 from bogiemon.daemon.outbox import OutboxCounts
 

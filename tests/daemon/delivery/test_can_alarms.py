@@ -23,7 +23,7 @@ from bogiemon.daemon.delivery.can_alarms import (
     load_alarm_codecs,
     worst_indicator,
 )
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.drivers.candb import DbcError, load_layout, shipped_dbc_text
 from bogiemon.drivers.player import PlayError, open_player_bus
 

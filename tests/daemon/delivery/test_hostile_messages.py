@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 
-from bogiemon.daemon.cli.listen import format_received
+from bogiemon.cli.listen import format_received
 from bogiemon.daemon.delivery.connection import ConnectionSettings
 from bogiemon.daemon.delivery.listener import RECENT_STATUSES, Listener, ListenError, Received, ReceivedStore, parse_message
 from bogiemon.daemon.delivery.memory_transport import MemoryBroker, MemoryTransport
@@ -41,7 +41,7 @@ from bogiemon.daemon.messages import (
     stored_status,
 )
 from bogiemon.daemon.delivery.transport import TransportEvents
-from bogiemon.daemon.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
 from bogiemon.daemon.store import EventStore
 from bogiemon.daemon.outbox import OutboxCounts
 from tests.daemon.delivery.support import DEADLINE_S, PREFIX, WAGON, commit, make_events, running, settings

@@ -12,7 +12,7 @@ import paho.mqtt.client as mqtt
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
-from bogiemon.daemon.cli.main import main
+from bogiemon.cli.main import main
 from bogiemon.daemon.messages import EventMessage, dump
 from tests.daemon.delivery.mqtt_broker import Broker, make_password_file
 from tests.daemon.delivery.support import WAGON, make_events

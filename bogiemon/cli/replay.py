@@ -1,0 +1,67 @@
+"""`bogiemon replay RECORDING... [--config F] [--load auto|full|tare] [--json] [--realtime]`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from typing import TYPE_CHECKING
+
+from bogiemon.cli.events import format_event
+
+if TYPE_CHECKING:
+    from bogiemon.daemon.sinks import EventSink
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("replay", help="run recordings (CSV, Parquet or CAN logs) through the daemon's pipeline and print its events")
+    p.add_argument("files", nargs="+", metavar="RECORDING", help="recordings (.csv, .csv.gz, .parquet) or CAN logs (.log, .asc, .blf), in time order")
+    p.add_argument("--config", help="config file (default: the shipped default config)")
+    p.add_argument("--load", choices=("auto", "full", "tare"), help="load state, overriding decision.load (auto: estimated from the signals)")
+    p.add_argument("--json", action="store_true", help="events as JSON lines")
+    p.add_argument("--realtime", action="store_true", help="pace the recordings at real time instead of as fast as possible")
+    p.add_argument("--state-dir", help="keep the event store here (default: a temporary one)")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.config import load_config
+    from bogiemon.daemon.replay import replay
+
+    config = load_config(args.config)
+    summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
+    c = summary.counters
+    print(
+        f"replayed {summary.recordings} recording(s): {c.windows} windows, {c.judged} judged, {c.gated} gated, "
+        f"{c.sensor_fault_windows} with a sensor problem, {c.events} events; final mode {summary.final_mode}",
+        file=sys.stderr,
+    )
+    for report in summary.reports:  # what a source counted and skipped, one line per recording
+        line = report.skipped_text()
+        if line is not None:
+            print(line, file=sys.stderr)
+        clipped = report.source_counters.get("clipped_samples", 0)
+        if clipped:
+            print(clipped_text(report.path, clipped), file=sys.stderr)
+    return 0
+
+
+def clipped_text(path: str, clipped: int) -> str:
+    """The line saying a recording's samples beyond the converter's range were clipped."""
+    from bogiemon.drivers.recording import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2
+
+    what = "sample" if clipped == 1 else "samples"
+    return f"{path}: clipped {clipped} {what} beyond the converter's range to its full scale ({MIN_ACCEL_MPS2:.4f} .. {MAX_ACCEL_MPS2:+.4f} m/s^2)"
+
+
+def print_sink(as_json: bool) -> EventSink:
+    """A sink that prints each committed event, as a line or as JSON."""
+    from bogiemon.judgement.events import Event
+    from bogiemon.daemon.sinks import EventSink
+
+    class PrintSink(EventSink):
+        def publish(self, event: Event) -> None:
+            print(json.dumps(event.as_dict()) if as_json else format_event(event), flush=True)
+
+    return PrintSink()

@@ -1,0 +1,69 @@
+"""The sensors' state across windows: per-window health verdicts in, SENSOR_FAULT and SENSOR_CLEARED
+events out (judgement/health.py judges each window)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.health import WindowHealth
+from bogiemon.detection import WindowIndicators
+
+
+@dataclass
+class HealthState:
+    reported: dict[str, list[str]]  # the problems of the last SENSOR_FAULT, empty when healthy
+    clean_windows: int = 0
+
+    def as_dict(self) -> dict[str, object]:
+        return {"reported": self.reported, "clean_windows": self.clean_windows}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> HealthState:
+        if not data:
+            return cls(reported={})
+        return cls(reported={k: list(v) for k, v in data["reported"].items()}, clean_windows=int(data["clean_windows"]))
+
+
+class HealthTracker:
+    """Turns per-window health verdicts into SENSOR_FAULT and SENSOR_CLEARED events.
+
+    A fault is reported when a problem appears that is not reported yet (a channel, or a new
+    problem on one); while it lasts the reported set only grows, so a problem that comes and
+    goes from window to window (a dead channel seen as flat, then flat and stuck) is one event,
+    not one per change. It clears after clear_after_windows consecutive windows without problems
+    that were not gated: at standstill a flat or stuck channel cannot be told from a quiet one,
+    and the coherence and layout checks run only on windows of steady, excited running.
+    """
+
+    def __init__(self, config_hash: str, clear_after_windows: int = 3, state: HealthState | None = None) -> None:
+        self.config_hash = config_hash
+        self.clear_after_windows = clear_after_windows
+        self.state = state or HealthState(reported={})
+
+    @property
+    def faulted(self) -> bool:
+        """A SENSOR_FAULT is reported and not yet cleared."""
+        return bool(self.state.reported)
+
+    def update(self, window: WindowIndicators, health: WindowHealth) -> list[Event]:
+        s = self.state
+        current = {ch: sorted(p.value for p in problems) for ch, problems in health.problems.items()}
+        details = {"window_start_s": window.start_s, "window_end_s": window.end_s, "rms_mps2": list(window.rms_mps2)}
+        if current:
+            s.clean_windows = 0
+            grown = {ch: sorted(set(s.reported.get(ch, [])) | set(ps)) for ch, ps in {**s.reported, **current}.items()}
+            if grown != s.reported:
+                s.reported = grown
+                return [self._event(window, EventKind.SENSOR_FAULT, {**details, "problems": current, "reported": grown})]
+            return []
+        if s.reported and health.gate is None:
+            s.clean_windows += 1
+            if s.clean_windows >= self.clear_after_windows:
+                previous, s.reported, s.clean_windows = s.reported, {}, 0
+                return [self._event(window, EventKind.SENSOR_CLEARED, {**details, "cleared": previous})]
+        return []
+
+    def _event(self, window: WindowIndicators, kind: EventKind, details: dict[str, object]) -> Event:
+        return Event(time_s=window.end_s, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash=self.config_hash, details=details)
