@@ -15,9 +15,9 @@ import against [tool.bogiemon.house] in pyproject.toml:
 - `lazily`: a layer imports another only inside a function (what one command or source needs when it
   runs), never when the module is imported: a rule of start-up time, not of direction.
 
-And one rule with no exception: no cycle of imports between modules, the imports for the type
-checker (`if TYPE_CHECKING:`) counted too. A cycle that only the type checker sees is still two
-modules that cannot be read one without the other.
+And one rule with no exception: no cycle of imports between modules, the imports inside functions
+and those for the type checker (`if TYPE_CHECKING:`) counted too. A cycle that only the type
+checker or a function sees is still two modules that cannot be read one without the other.
 """
 
 from __future__ import annotations
@@ -160,11 +160,11 @@ def violations(found: list[Import], layers: Mapping[str, int], rules: list[Rule]
 
 
 def cycles(found: list[Import]) -> list[list[str]]:
-    """The cycles of module-level imports (typing-only ones included, lazy ones not): each strongly
-    connected component of more than one module, sorted (Tarjan's algorithm)."""
+    """The cycles of imports (lazy and typing-only ones included): each strongly connected
+    component of more than one module, sorted (Tarjan's algorithm)."""
     graph: dict[str, set[str]] = {}
     for imp in found:
-        if not imp.lazy and imp.target in _KNOWN and imp.target != imp.module:
+        if imp.target in _KNOWN and imp.target != imp.module:
             graph.setdefault(imp.module, set()).add(imp.target)
     index: dict[str, int] = {}
     low: dict[str, int] = {}
@@ -214,7 +214,7 @@ def check(root: Path | None = None) -> tuple[list[str], int]:
     problems = violations(found, layers, rules)
     by_module = {name: str(path.relative_to(root)) for name, path in found_modules}
     for component in cycles(found):
-        problems.append(f"{by_module[component[0]]}: an import cycle (TYPE_CHECKING imports counted): {' <-> '.join(component)}")
+        problems.append(f"{by_module[component[0]]}: an import cycle (those inside functions and for TYPE_CHECKING counted): {' <-> '.join(component)}")
     return list(dict.fromkeys(problems)), len(found_modules)  # `from x import a, b`: one line, not two
 
 

@@ -16,14 +16,12 @@ measured among the sisters at hand.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from bogiemon.fleet.judged import WagonJudged
 from bogiemon.fleet.layout import Fleet, Wagon
-
-if TYPE_CHECKING:
-    from bogiemon.fleet.judge import WagonJudged
 
 STANDS_OUT = 3.0  # robust standard deviations (RMS over the features)
 MIN_SISTERS = 3  # other wagons of the same type and load needed to judge one against them

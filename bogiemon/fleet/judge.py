@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -34,6 +34,8 @@ from bogiemon.judgement.verdict import Outcome, WindowJudge, WindowVerdict
 from bogiemon.judgement.vocabulary import LoadState, Mode
 from bogiemon.judgement.windowing import GapMemory
 from bogiemon.drivers.atomic import write_atomically, write_text_atomically
+from bogiemon.fleet.evidence import fleet_relative
+from bogiemon.fleet.judged import MeanEvidence, WagonJudged
 from bogiemon.fleet.judged_files import JUDGED_FORMAT, WagonState
 from bogiemon.fleet.cluster import DaskRunner, InProcess, Runner
 from bogiemon.fleet.layout import Day, Fleet, Issue, Wagon, scan_fleet
@@ -60,35 +62,6 @@ class LoadEvidence:
 
     first_day: list[list[float]] = field(default_factory=list)
     last_day: list[list[float]] = field(default_factory=list)
-
-
-class MeanEvidence(TypedDict):
-    """A load state's mean coupling vectors on the first and last day, and their windows."""
-
-    first_day: list[float]
-    last_day: list[float]
-    first_day_windows: int
-    last_day_windows: int
-
-
-@dataclass(frozen=True)
-class WagonJudged:
-    wagon_id: str
-    events: tuple[tuple[int, Event], ...]  # (seq, event) in commit order
-    series: pa.Table
-    mode: Mode
-    sensor_reported: dict[str, list[str]]
-    not_judged: bool  # a NOT_JUDGED in force at the end: running left unjudged for long
-    unjudged_running_s: float
-    windows: int
-    judged: int
-    gated: int
-    sensor_fault_windows: int
-    trend: float | None  # the latest judged window's trend and its alarm level
-    trend_alarm: float | None
-    days: tuple[str, ...]
-    evidence: dict[str, MeanEvidence]  # load -> first/last day mean coupling vector, windows
-    issues: tuple[Issue, ...]
 
 
 class _Series:
@@ -251,8 +224,6 @@ def judge_fleet(
     progress: Callable[[int, int], None] | None = None,
 ) -> JudgeSummary:
     """Judge every wagon of the fleet from its windows; writes JUDGED (docs/fleet-formats.md)."""
-    from bogiemon.fleet.evidence import fleet_relative
-
     started = time.perf_counter()
     if not Path(windows_dir).is_dir():
         raise JudgeError(f"{shown(windows_dir)}: no such windows dataset (run `bogiemon fleet analyze FLEET -o {shown(windows_dir)}` first)")

@@ -13,7 +13,8 @@ import numpy as np
 from scipy import signal
 
 from bogiemon.detection import butter_sos, to_modal, xcorr_direct
-from bogiemon.simulator.run import SimulationResult, simulate_batch
+from bogiemon.simulator.result import SimulationResult
+from bogiemon.simulator.run import simulate_batch
 from bogiemon.simulator.scenario import Scenario
 from bogiemon.simulator.suspension import parse_fault
 

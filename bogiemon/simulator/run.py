@@ -19,7 +19,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,14 +28,12 @@ from scipy import signal
 from bogiemon.drivers.recording import write_csv_recording
 from bogiemon.simulator import kernel
 from bogiemon.simulator.errors import SimulationError
+from bogiemon.simulator.result import SimulationResult
 from bogiemon.simulator.scenario import MONITORED_BOGIE, Scenario, read_sidecar, sidecar_path, speed_table, write_sidecar
 from bogiemon.simulator.sensors import anti_alias_sos
 from bogiemon.simulator.suspension import BOGIES, CORNER_ORDER
 from bogiemon.simulator.track import TrackProfile, generate_track
 from bogiemon.simulator.vehicle import State, VehicleModel, build_model, static_equilibrium
-
-if TYPE_CHECKING:
-    from bogiemon.simulator.model_b import bodies as model_b_bodies
 
 PREROLL_RAMP_M = 20.0
 PREROLL_SETTLE_M = 20.0
@@ -47,20 +45,6 @@ CHUNK_S = 2.0
 MAX_TRACK_M = 400_000.0
 
 Progress = Callable[[float], None]  # called with the fraction done, 0..1
-
-
-@dataclass(frozen=True)
-class SimulationResult:
-    """The recording of one scenario: time_s (n,) from 0 and accel_mps2 (n, 3), channels a1..a3."""
-
-    scenario: Scenario
-    time_s: NDArray[np.float64]
-    accel_mps2: NDArray[np.float64]
-    # The wagon that ran, and its state at the end of the run (for checks): model A's types for a
-    # scenario of model "a", model_b.bodies' WagonModel and State for "b".
-    model: VehicleModel | model_b_bodies.WagonModel
-    final_state: State | model_b_bodies.State
-    derived: dict[str, Any]  # integration step, pre-roll, each corner's Kz and Fs, ...
 
 
 @dataclass

@@ -10,7 +10,8 @@ import pyarrow as pa
 from bogiemon.daemon.config import load_config
 from bogiemon.judgement.vocabulary import Mode
 from bogiemon.fleet.evidence import MIN_SPREAD, STANDS_OUT, fleet_relative, robust_distance
-from bogiemon.fleet.judge import SERIES_SCHEMA, MeanEvidence, WagonJudged
+from bogiemon.fleet.judge import SERIES_SCHEMA
+from bogiemon.fleet.judged import MeanEvidence, WagonJudged
 from bogiemon.fleet.layout import Fleet, Wagon
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ from bogiemon.simulator.model_b import kernel, sensors
 from bogiemon.simulator.model_b.bodies import N_DOF, State, WagonModel, build_models, static_equilibrium
 from bogiemon.simulator.model_b.parameters import check_step
 from bogiemon.simulator.model_b.track import generate_track, track_model
+from bogiemon.simulator.result import SimulationResult
 from bogiemon.simulator.scenario import MONITORED_BOGIE, Scenario, speed_table
 from bogiemon.simulator.suspension import BOGIES, CORNER_ORDER
 from bogiemon.simulator.track import TrackProfile
@@ -33,9 +34,6 @@ TRACK_DS_M = 0.05
 TRACK_MARGIN_M = 10.0
 CHUNK_S = 2.0
 MAX_TRACK_M = 400_000.0
-
-if TYPE_CHECKING:
-    from bogiemon.simulator.run import SimulationResult
 
 Progress = Callable[[float], None]
 FloatArray = NDArray[np.float64]
@@ -151,8 +149,6 @@ def run_group(
 
     `tracks` replaces the generated rail profiles (tests: identical or mirrored rails).
     """
-    from bogiemon.simulator.run import SimulationResult  # at run time: run.py imports this module lazily
-
     preps = [_prepare(s, None if tracks is None else tracks[i]) for i, s in enumerate(group)]
     n_batch = len(preps)
     fs_hz, factor = group[0].fs_hz, group[0].oversampling
