@@ -272,7 +272,8 @@ class BogiemonConfig(Section):
         """What the recorder needs: its section, the windows and confirmation whose samples a
         snapshot holds, and the event store's reserve (with room for the MQTT outbox full of status
         messages when MQTT sends them); None when [recorder] is not enabled."""
-        from bogiemon.daemon.recorder import RecorderSettings, event_store_reserve_bytes  # only when enabled
+        from bogiemon.daemon.recorder import RecorderSettings  # only when enabled
+        from bogiemon.daemon.recorder_space import event_store_reserve_bytes
 
         r, m = self.recorder, self.mqtt
         if not r.enabled:
