@@ -40,9 +40,20 @@ matches them, so edit the models' descriptions, not this page.
   would and prints it resolved, defaults filled in, with the digest its events carry.
 - Units are in the names: `_s` seconds, `_h` hours, `_hz` hertz, `_m` metres, `_mps2` m/s^2,
   `_kmh` km/h, `_bytes` bytes.
+- What `check-config` accepts, `run` starts and a reload (`systemctl reload`, SIGHUP) applies;
+  what it rejects, a reload rejects too, with the error in the journal and in `systemctl status`,
+  and the running config stays. A recording whose rate `[processing]` cannot run is named the
+  same way by `analyze`, `replay` and `calibrate`.
+- `include` names files relative to the including file's folder; after `..` and symlinks are
+  resolved they must lie in that folder or below it, unless the file sets
+  `allow_absolute_includes = true`. An included file cannot include others or set that flag. Every
+  config file must be a regular UTF-8 file of at most 1 MiB.
 - Tables written by `bogiemon calibrate` (the `[decision.fused.<load>]`, `[decision.load_states.<load>]`
   and `[decision.load_discriminant]` tables, and the commissioned fields of `[health]`) belong in
   the calibration file that `include` names, not in a hand-written config.
+- A credential or key file of `[mqtt]` (`username_file`, `password_file`, `tls_key_file`) that its
+  group or others can read is a warning at every load, in the journal and as a `# warning:` line of
+  `check-config`: `chmod 600` it, or hand it over with systemd's `LoadCredential=`.
 """
 
 
