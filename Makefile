@@ -162,6 +162,12 @@ TRANSFER_PLAN ?=
 transfer: $(STAMP)
 	$(VENV)/bin/bogiemon evaluate --transfer $(TRANSFER_PLAN) -o docs/robust/transfer $(if $(DATA),--data $(DATA))
 
+# The configuration reference (docs/configuration.md): every section and field, generated from the
+# config models' descriptions (a test fails while the committed page differs from them).
+.PHONY: config-reference
+config-reference: $(STAMP)
+	$(VENV)/bin/bogiemon check-config --reference > docs/configuration.md.tmp && mv docs/configuration.md.tmp docs/configuration.md
+
 # The demo wagon's commissioning (config/demo_calibration.toml), as a keeper does it: two hours
 # of the healthy wagon at the demo's load on varied tracks and speeds, then `bogiemon calibrate`.
 DEMO_RUNS := build/demo-commissioning

@@ -97,7 +97,7 @@ BY_NAME = {s.name: s for s in SPECS}
 
 # What counts as a clear error for bad input, per target: the documented exception classes, as
 # dotted names (a name not defined yet is reported and ignored). Any other exception is a crash.
-RECORDING_ERROR = "bogiemon.drivers.recording.RecordingError"
+RECORDING_ERROR = "bogiemon.drivers.recording_format.RecordingError"
 DBC_ERROR = "bogiemon.drivers.candb.DbcError"
 CONFIG_ERROR = "bogiemon.daemon.config.ConfigError"
 STORE_ERROR = "bogiemon.daemon.store.StoreError"

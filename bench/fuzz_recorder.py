@@ -46,7 +46,8 @@ import fuzz_core
 from bogiemon.daemon.config import BogiemonConfig, parse_config
 from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.monitor import MemoryEventLog, Monitor
-from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings, keep_the_reserve_free
+from bogiemon.daemon.recorder import Recorder, RecorderSettings, keep_the_reserve_free
+from bogiemon.daemon.recorder_space import NAME_PATTERN
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.atomic import final_name_of
 from bogiemon.drivers.base import Block

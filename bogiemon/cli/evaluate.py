@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--transfer",
         action="store_true",
         help="instead: fit the priors on the training fleet of each wagon model (A, B) in turn and judge the daemon's "
-        "default method with them on both models' evaluation fleets, against issue 16's targets (README.md and "
+        "default method with them on both models' evaluation fleets, against the robustness targets (README.md and "
         "results.json; the config folder is not touched)",
     )
     p.add_argument("--full", action="store_true", help="with --transfer: the plan with 100 h of healthy running per model (about 90 minutes from nothing)")

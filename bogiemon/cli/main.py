@@ -29,7 +29,7 @@ USER_ERRORS: frozenset[str] = frozenset(
         "bogiemon.fleet.judged_files.ReportError",
         "bogiemon.drivers.candb.DbcError",
         "bogiemon.drivers.player.PlayError",
-        "bogiemon.drivers.recording.RecordingError",
+        "bogiemon.drivers.recording_format.RecordingError",
         "bogiemon.simulator.errors.SimulationError",
         "bogiemon.lab.robust.evaluate.EvaluateError",
         "bogiemon.lab.fleetsim.FleetSimError",

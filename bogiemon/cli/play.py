@@ -1,6 +1,6 @@
 """`bogiemon play FILE --interface socketcan --channel vcan0 [--rate N] [--layout hub|per-node] [--ready-file PATH]`.
 
-Puts a CSV recording (or a simulated run) on a CAN bus as the sensor hub or nodes would send it,
+Puts a recording (CSV, .csv.gz or Parquet; or a simulated run) on a CAN bus as the sensor hub or nodes would send it,
 encoded with the DBC, at real-time pace or N times faster (--rate 0: as fast as possible).
 """
 
@@ -19,8 +19,8 @@ LAYOUT_CHOICES = ("hub", "per-node")
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("play", help="send a CSV recording on a CAN bus as the sensors would (bench, tests)")
-    p.add_argument("file", metavar="FILE", help="CSV recording (header time_s,a1,a2,a3)")
+    p = sub.add_parser("play", help="send a recording on a CAN bus as the sensors would (bench, tests)")
+    p.add_argument("file", metavar="FILE", help="a recording (.csv, .csv.gz or .parquet; header time_s,a1,a2,a3)")
     p.add_argument("--interface", choices=sorted(KINDS), default="socketcan",
                    help="python-can interface (default socketcan; virtual: in-process, for tests)")  # fmt: skip
     p.add_argument("--channel", default="vcan0", help="CAN interface or virtual channel (default vcan0)")

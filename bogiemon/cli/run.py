@@ -1,4 +1,4 @@
-"""`bogiemon run [--config F] [--load auto|full|tare]`: the service (systemd Type=notify, or by hand)."""
+"""`bogiemon run [--config F] [--load auto|full|tare] [--state-dir D]`: the service (systemd Type=notify, or by hand)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p = sub.add_parser("run", help="run the monitoring service")
     p.add_argument("--config", help="config file (default: the shipped default config)")
     p.add_argument("--load", choices=("auto", "full", "tare"), help="load state, overriding decision.load (auto: estimated from the signals)")
+    p.add_argument("--state-dir", help="the state directory (the event store), overriding the config's [state] directory")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     p.set_defaults(run=run)
 
@@ -19,6 +20,6 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.sources import open_source
 
     configure_logging(level=args.log_level)
-    service = Service(args.config, open_source, load=args.load)
+    service = Service(args.config, open_source, load=args.load, state_dir=args.state_dir)
     service.install_signal_handlers()
     return service.run()

@@ -2,7 +2,8 @@
 
 This is the edge where text from a file becomes typed values; the rest of bogiemon receives plain
 dataclasses built from it (BogieGeometry, ProcessingSettings, ...). Units are in field names. The
-sections are in daemon/config_sections.py; here they are put together, checked as a whole (what
+sections are in daemon/config_sections.py, config_decision.py, config_sources.py and
+config_delivery.py, each field with its description; here they are put together, checked as a whole (what
 `run` builds is built at validation), and read from files with their includes.
 """
 
@@ -21,27 +22,27 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel, Field, ValidationError, model_validator
 
+from bogiemon.daemon.config_decision import DecisionConfig
+from bogiemon.daemon.config_delivery import CanAlarmsConfig, MqttConfig, RecorderConfig
 from bogiemon.daemon.config_sections import (  # the sections, importable from here as before
-    SOURCE_KINDS,
-    CanAlarmsConfig,
-    CanSourceConfig,
     ConfigError,
-    DecisionConfig,
     GeometryConfig,
     HealthConfig,
-    MqttConfig,
     PipelineConfig,
     ProcessingConfig,
-    RecorderConfig,
-    ReplaySourceConfig,
     Section,
     SensorsConfig,
-    SerialSourceConfig,
-    SimulatedSourceConfig,
-    SourceConfig,
     StateConfig,
     WagonConfig,
     core_settings,
+)
+from bogiemon.daemon.config_sources import (
+    SOURCE_KINDS,
+    CanSourceConfig,
+    ReplaySourceConfig,
+    SerialSourceConfig,
+    SimulatedSourceConfig,
+    SourceConfig,
 )
 from bogiemon.judgement.decision import DecisionSettings, Threshold
 from bogiemon.judgement.settings import HealthSettings
@@ -54,7 +55,7 @@ if TYPE_CHECKING:
     from bogiemon.daemon.recorder import RecorderSettings
     from bogiemon.judgement.verdict import MonitorSettings
 
-# The whole tree is read from here: the sections live in daemon/config_sections.py.
+# The whole tree is read from here: the sections live in daemon/config_*.py.
 __all__ = [
     "BogiemonConfig",
     "CanAlarmsConfig",
@@ -95,9 +96,16 @@ CONFIG_FILE = FileKind(
 class BogiemonConfig(Section):
     """The whole configuration."""
 
-    include: list[str] = Field(default_factory=list)
+    include: list[str] = Field(default_factory=list, description=(
+        "Further files merged over this one, in order, relative to this file's folder: e.g. the "
+        "calibration written by `bogiemon calibrate` (include = [\"calibration.toml\"]). An included file "
+        "cannot include others; each must be a regular UTF-8 file of at most 1 MiB (as this one)."
+    ))  # fmt: skip
     # Includes resolve inside the including file's folder unless this says otherwise (load_config).
-    allow_absolute_includes: bool = False
+    allow_absolute_includes: bool = Field(False, description=(
+        "Included files must lie in this file's folder or below it ('..' and symlinks resolved): true "
+        "also allows absolute paths and files elsewhere (only this file can set it, not an included one)."
+    ))  # fmt: skip
     geometry: GeometryConfig = GeometryConfig()
     sensors: SensorsConfig = SensorsConfig()
     processing: ProcessingConfig = ProcessingConfig()
@@ -272,7 +280,8 @@ class BogiemonConfig(Section):
         """What the recorder needs: its section, the windows and confirmation whose samples a
         snapshot holds, and the event store's reserve (with room for the MQTT outbox full of status
         messages when MQTT sends them); None when [recorder] is not enabled."""
-        from bogiemon.daemon.recorder import RecorderSettings, event_store_reserve_bytes  # only when enabled
+        from bogiemon.daemon.recorder import RecorderSettings  # only when enabled
+        from bogiemon.daemon.recorder_space import event_store_reserve_bytes
 
         r, m = self.recorder, self.mqtt
         if not r.enabled:

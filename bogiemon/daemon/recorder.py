@@ -13,7 +13,8 @@ them (a temporary '.' name, fsync, rename), then deletes the oldest recordings o
 A recording is a nicety, the events are what matter: a full queue drops the recording and a
 failing disk loses it, both counted and logged, and neither ever reaches the monitor. Nor does the
 disk: the recorder leaves the event store's reserve free on its file system, deleting its own
-oldest files before it writes and not recording while there is no room above the reserve.
+oldest files before it writes and not recording while there is no room above the reserve
+(daemon/recorder_space.py: the reserve, the bound of a recording's size, the deletion).
 """
 
 from __future__ import annotations
@@ -21,14 +22,13 @@ from __future__ import annotations
 import math
 import os
 import queue
-import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,11 +38,19 @@ from bogiemon.daemon.logs import get_logger
 from bogiemon.drivers.base import Block
 from bogiemon.drivers.atomic import final_name_of, write_atomically
 from bogiemon.drivers.recording import RecordingFormat, write_recording
+from bogiemon.daemon.recorder_space import (
+    DEFAULT_RESERVE_BYTES,
+    FILE_SLACK_BYTES,
+    MIB,
+    NAME_PATTERN,
+    evict_oldest,
+    own_files,
+    recording_bound_bytes,
+)
 
 if TYPE_CHECKING:
     from bogiemon.judgement.verdict import WindowVerdict
 
-MIB = 1 << 20
 # Recordings waiting for the writer at most: a default snapshot is 1.3 MiB in memory at 500 Hz.
 QUEUE_RECORDINGS = 4
 # The ring never takes more than this, whatever the config asks (a 1 h window confirmed over 100
@@ -53,78 +61,16 @@ _SAMPLE_BYTES = 3 * np.dtype(np.float32).itemsize
 CLOSE_TIMEOUT_S = 30.0
 REASONS = {EventKind.SUSPECTED: "suspected", EventKind.CONFIRMED: "confirmed"}
 PERIODIC = "periodic"
-# The recorder's own files, and only they, count towards the cap and are ever deleted; a name is
-# the UTC time of its first sample, so name order is time order.
-NAME_PATTERN = re.compile(r"\d{8}T\d{6}Z_(?:suspected|confirmed|periodic)(?:-\d+)?(?:\.csv\.gz|\.parquet)")
 _STAMP_FORMAT = "%Y%m%dT%H%M%SZ"
 # Slack when counting whole hops between two window times (float sums of sample periods).
 _HOP_SLACK = 1e-6
-
-# The free space the recorder leaves to the event store (docs/recorder.md, "The reserve"): what the
-# store takes for a long time, from figures measured with the real store on a tmpfs (4 KiB pages)
-# and checked by tests/daemon/test_recorder_space.py. The store is SQLite in WAL mode: the WAL grows
-# until a commit takes it past SQLite's default checkpoint of 1000 pages (measured ceiling 4.17 MB,
-# 1012 frames of 4 KiB + 24 B; with the 32 KiB -shm index), and is deleted at every clean stop, so
-# it grows again after each start: 7 to 8 pages (30 kB) an event commit, the ceiling within about
-# 135 events. store.py's LOW_SPACE_BYTES (256 KiB) is only where a refused commit is named a full disk.
-STORE_WAL_BYTES = 5 * MIB  # the WAL at its ceiling and the -shm, 0.9 MB to spare (a batch of held events past it)
-# An event committed with the monitor's state, in the main file: measured 1 066 B (the demo wagon's
-# CONFIRMED of 864 B and its state of 1.5 kB), 860 B (the tests' short windows).
-STORE_EVENT_BYTES = 1536
-STORE_EVENTS = 10_000  # the events the reserve has room for: 10 a day for nearly 3 years
-STORE_STATUS_BYTES = 1024  # a status message waiting in the MQTT outbox: measured 819 B for one of 795 B
-
-
-def event_store_reserve_bytes(status_outbox_messages: int) -> int:
-    """The free space the recorder never takes from the event store: its WAL at the ceiling,
-    STORE_EVENTS events, and status_outbox_messages MQTT status messages waiting to be sent (the
-    outbox bound when MQTT sends status messages, else 0)."""
-    return STORE_WAL_BYTES + STORE_EVENTS * STORE_EVENT_BYTES + status_outbox_messages * STORE_STATUS_BYTES
-
-
-# With MQTT's default outbox of 10 000 messages: 30 842 880 B (29.4 MiB); 20 602 880 B (19.6 MiB) without.
-DEFAULT_RESERVE_BYTES = event_store_reserve_bytes(10_000)
-# What a file may take beyond its bytes rounded up to the file system's blocks: an extent block, a
-# directory block more for its name (generous: ext4, f2fs and tmpfs take a block or two at most).
-FILE_SLACK_BYTES = 64 * 1024
 # While no recording comes, the writer looks this often whether the reserve is still free (the
 # event store grows into it, or another program fills the disk) and gives its own files back.
 SPACE_CHECK_S = 60.0
-_CSV_HEADER_BYTES = len("time_s,a1,a2,a3\n")
-_BOUND_CHUNK_ROWS = 1 << 16
 
 WriteRecording = Callable[[Path, NDArray[np.float64], NDArray[np.float32]], None]
 # Room is made and taken by one writer at a time (during a reload, two recorders write).
 _DISK_LOCK = threading.Lock()
-
-
-def recording_bound_bytes(time_s: NDArray[np.float64], accel_mps2: NDArray[np.floating], form: RecordingFormat = RecordingFormat.CSV_GZ) -> int:
-    """An upper bound of the size of the recording drivers/recording.py writes for these samples.
-
-    Parquet: four float64 columns of the samples as they are (8 bytes a value when neither the
-    dictionary nor zstd helps: pyarrow then writes them plain, and zstd's frame adds at most a few
-    bytes a 128 KiB block), plus 64 KiB for the footer and the pages' headers. CSV:
-    The text: each value "%.6f" is its sign (of -0.0 too), the digits of its whole part (at most
-    those of floor(|x|) + 1, rounding included), a point and 6 decimals, then a comma or a newline
-    ("nan", "inf" and "-inf" take at most 4). Deflate expands incompressible text by at most 5 bytes
-    a 16 KiB block, and gzip adds 18 bytes (zlib's technical details): counted here as 8 bytes a
-    16 KiB block and 64. About 2.9 times what a bogie's samples compress to (docs/recorder.md).
-    """
-    if form is RecordingFormat.PARQUET:
-        raw_bytes = 4 * 8 * time_s.shape[0]
-        return raw_bytes + raw_bytes // 4096 + 65536
-    text_bytes = _CSV_HEADER_BYTES
-    for start in range(0, time_s.shape[0], _BOUND_CHUNK_ROWS):  # in chunks: an hour at 500 Hz is 1.8 M rows
-        rows = slice(start, start + _BOUND_CHUNK_ROWS)
-        text_bytes += _text_bytes_bound(time_s[rows]) + sum(_text_bytes_bound(accel_mps2[rows, i]) for i in range(3))
-    return text_bytes + text_bytes // 2048 + 64
-
-
-def _text_bytes_bound(values: NDArray[np.floating]) -> int:
-    values = np.asarray(values, dtype=np.float64)
-    finite = np.isfinite(values)
-    digits = np.floor(np.log10(np.where(finite, np.abs(values), 0.0) + 1.0)) + 1.0
-    return int((np.where(finite, np.signbit(values) + digits + 7.0, 4.0) + 1.0).sum())
 
 
 @dataclass(frozen=True)
@@ -481,7 +427,7 @@ class Recorder:
             self._log.info("recording not written: still no room above the event store's reserve", **fields)
 
     def _evict(self, directory: Path, needed_bytes: int) -> int:
-        return _evict(directory, self.settings.reserve_bytes, needed_bytes, self.counters, self._log)
+        return evict_oldest(directory, self.settings.reserve_bytes, needed_bytes, self.counters, self._log)
 
     def _free_name(self, directory: Path, stem: str) -> Path:
         """<stem>.csv.gz, or <stem>-2.csv.gz, -3, ... when a recording of that second exists."""
@@ -496,7 +442,7 @@ class Recorder:
         """Delete the oldest of the recorder's own files, never `keep` (just written), until the
         total is at most max_total_bytes."""
         try:
-            files = _own_files(directory)
+            files = own_files(directory)
         except OSError as exc:
             self.counters.write_errors += 1
             self._log.error("cannot list the recordings folder to keep it under its cap", path=str(directory), error=exc.strerror or str(exc))
@@ -538,39 +484,6 @@ class Recorder:
         self._log.info("recorder stopped", **vars(self.counters))
 
 
-def _evict(directory: Path, reserve_bytes: int, needed_bytes: int, counters: RecorderCounters, log: Any) -> int:
-    """Delete the recorder's oldest files until needed_bytes fit above the reserve, or, when
-    deleting them all would not make that room, until the reserve is free; the free bytes then."""
-    free_bytes = _free_bytes(directory)
-    if free_bytes - needed_bytes >= reserve_bytes:
-        return free_bytes
-    files = _own_files(directory)
-    held_bytes = sum(disk_bytes for _, _, disk_bytes in files)
-    target = reserve_bytes + needed_bytes if free_bytes + held_bytes - needed_bytes >= reserve_bytes else reserve_bytes
-    deleted_n = deleted_bytes = 0
-    for name, size, _ in files:
-        if free_bytes >= target:
-            break
-        try:
-            (directory / name).unlink()
-        except FileNotFoundError:
-            pass  # an uploader took it meanwhile
-        except OSError as exc:  # the disk refuses: the next files would fare no better
-            counters.write_errors += 1
-            log.error("cannot delete an old recording", path=str(directory / name), error=exc.strerror or str(exc))
-            break
-        else:
-            counters.files_deleted += 1
-            counters.bytes_deleted += size
-            deleted_n += 1
-            deleted_bytes += size
-        free_bytes = _free_bytes(directory)  # measured: a file an uploader holds open frees nothing yet
-    if deleted_n:
-        log.info(
-            "deleted the oldest recordings to keep the event store's reserve free", path=str(directory), files=deleted_n,
-            bytes=deleted_bytes, free_bytes=free_bytes, reserve_bytes=reserve_bytes, needed_bytes=needed_bytes,
-        )  # fmt: skip
-    return free_bytes
 
 
 def keep_the_reserve_free(settings: RecorderSettings) -> None:
@@ -579,32 +492,7 @@ def keep_the_reserve_free(settings: RecorderSettings) -> None:
     (by an earlier version's recordings, say) does not even let open. A running recorder does the
     same from its own thread."""
     try:
-        _evict(settings.directory, settings.reserve_bytes, 0, RecorderCounters(), get_logger(component="recorder"))
+        evict_oldest(settings.directory, settings.reserve_bytes, 0, RecorderCounters(), get_logger(component="recorder"))
     except OSError:
         pass  # no folder yet, or one that cannot be read: the recorder's writer says what is wrong
-
-
-def _free_bytes(directory: Path) -> int:
-    """Free space on the folder's file system, as an unprivileged process (the event store) may use it."""
-    usage = os.statvfs(directory)
-    return usage.f_bavail * usage.f_frsize
-
-
-def _own_files(directory: Path) -> list[tuple[str, int, int]]:
-    """The recorder's own files in the folder, oldest first: (name, size, bytes taken on the disk).
-    Names of the pattern, regular files only: nothing else is ever counted or deleted."""
-    files = []
-    with os.scandir(directory) as entries:
-        for entry in entries:
-            if not NAME_PATTERN.fullmatch(entry.name):
-                continue
-            try:
-                if not entry.is_file(follow_symlinks=False):
-                    continue
-                stat = entry.stat(follow_symlinks=False)
-            except FileNotFoundError:
-                continue  # an uploader took it while we looked
-            files.append((entry.name, stat.st_size, stat.st_blocks * 512))
-    return sorted(files)
-
 

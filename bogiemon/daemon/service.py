@@ -19,7 +19,7 @@ from pathlib import Path
 from types import FrameType
 
 from bogiemon.daemon.blas import limit_blas_threads
-from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
+from bogiemon.daemon.config import BogiemonConfig, ConfigError, StateConfig, load_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
 from bogiemon.judgement.models import excitation_of
@@ -83,9 +83,11 @@ class Service:
         notifier: Notifier | None = None,
         sinks: list[EventSink] | None = None,
         observers: list[Callable[[WindowVerdict], None]] | None = None,
+        state_dir: str | Path | None = None,
     ) -> None:
         self.config_path = config_path
-        self.config = load_config(config_path)  # a bad config at start is a user error: exit 2
+        self.state_dir = Path(state_dir) if state_dir is not None else None
+        self.config = self._load_config()  # a bad config at start is a user error: exit 2
         self.load = load
         self.source_factory = source_factory
         self.notifier = notifier or Notifier()
@@ -94,6 +96,14 @@ class Service:
         self.flags = _Flags(threading.Event(), threading.Event())
         self.recorder: Recorder | None = None  # [recorder] enabled: it taps the monitor's blocks and windows
         self._log = get_logger(component="service")
+
+    def _load_config(self) -> BogiemonConfig:
+        """The config file, with the state directory of the command line in place of its own (at
+        every reload too: `--state-dir` holds for the whole run, as the file's [state] would)."""
+        config = load_config(self.config_path)
+        if self.state_dir is None:
+            return config
+        return config.model_copy(update={"state": StateConfig(directory=self.state_dir)})
 
     def _warn_if_not_commissioned(self, config: BogiemonConfig) -> None:
         """The fused method without this wagon's calibration judges against the fleet's population
@@ -259,7 +269,7 @@ class Service:
             self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in reason.splitlines()))
 
         try:
-            new = load_config(self.config_path)
+            new = self._load_config()
             # Everything the monitor takes, built before anything changes (the fused model's fit included).
             settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
         except Exception as exc:

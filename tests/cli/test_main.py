@@ -72,3 +72,12 @@ def test_a_subclass_of_a_user_error_is_one_and_an_internal_error_is_not() -> Non
 
     assert is_user_error(Narrower("x"))
     assert not is_user_error(KeyError("x"))
+
+
+@pytest.mark.parametrize("command", ["run", "replay", "events", "demo"])
+def test_every_command_that_keeps_an_event_store_takes_state_dir(command: str) -> None:
+    from bogiemon.cli.main import build_parser
+
+    extra = {"replay": ["run.csv"]}.get(command, [])
+    args = build_parser().parse_args([command, *extra, "--state-dir", "/tmp/elsewhere"])
+    assert args.state_dir == "/tmp/elsewhere"

@@ -16,7 +16,8 @@ from bogiemon.daemon.config import BogiemonConfig, load_config, parse_config
 from bogiemon.judgement.events import EventKind
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.judgement.verdict import WindowVerdict
-from bogiemon.daemon.recorder import NAME_PATTERN, Recorder, RecorderSettings
+from bogiemon.daemon.recorder import Recorder, RecorderSettings
+from bogiemon.daemon.recorder_space import NAME_PATTERN
 from bogiemon.daemon.replay import replay
 from bogiemon.daemon.service import Service
 from bogiemon.daemon.sinks import MemorySink

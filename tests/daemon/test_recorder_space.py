@@ -32,16 +32,14 @@ from bogiemon.daemon.delivery.status import status_from_monitor
 from bogiemon.daemon.messages import encode_status
 from bogiemon.judgement.events import Event, EventKind, Severity
 from bogiemon.daemon.monitor import STATE_KEY, Monitor
-from bogiemon.daemon.recorder import (
+from bogiemon.daemon.recorder import Recorder, RecorderSettings, keep_the_reserve_free
+from bogiemon.daemon.recorder_space import (
     DEFAULT_RESERVE_BYTES,
     NAME_PATTERN,
     STORE_EVENT_BYTES,
     STORE_STATUS_BYTES,
     STORE_WAL_BYTES,
-    Recorder,
-    RecorderSettings,
     event_store_reserve_bytes,
-    keep_the_reserve_free,
     recording_bound_bytes,
 )
 from bogiemon.daemon.service import EXIT_OK, Service

@@ -267,3 +267,46 @@ def test_service_keeps_blas_to_one_thread_while_it_runs_and_restores_it_after(sh
     assert service.run() == 0
     assert seen and all(counts == [1] * len(libraries) for counts in seen)
     assert [lib.get_num_threads() for lib in libraries] == before
+
+
+def test_a_state_dir_given_to_the_service_holds_its_events_and_a_reload_keeps_it(
+    tmp_path: Path, short_config: Path, own_signal_handlers: None
+) -> None:
+    # `bogiemon run --state-dir D`: the events go to D, not to the config's [state] directory, and
+    # a reload of the file (which names its own directory) neither moves nor questions it.
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(str(tmp_path / "notify"))
+    listener.settimeout(30.0)
+    accel = np.vstack([bogie_accel(20, seed=1), bogie_accel(20, seed=2, pitch_roll_coupling=1.0)])
+    blocks = as_blocks(accel)
+    changed = short_config.read_text().replace("[decision]\n", "[decision]\nclear_after_windows = 9\n")
+    feed = ReloadingFeed(blocks, 20, short_config, changed, listener)
+    elsewhere = tmp_path / "elsewhere"
+    sink = MemorySink()
+    service = Service(short_config, lambda config: FeedSource(feed), notifier=Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify")}),
+                      sinks=[sink], state_dir=elsewhere)  # fmt: skip
+    service.install_signal_handlers()
+    with structlog.testing.capture_logs() as logs:
+        assert service.run() == 0
+    assert feed.reloads == 3 and sum(1 for entry in logs if entry["event"] == "reloaded") == 3
+    assert not any("state.directory" in entry["event"] for entry in logs)
+    assert service.config.state.directory == elsewhere
+    assert [e.kind.value for e in sink.events][:2] == ["SUSPECTED", "CONFIRMED"]
+    assert EventStore(elsewhere, readonly=True).events() == sink.events
+    assert not (tmp_path / "state").exists()
+
+
+def test_bogiemon_run_state_dir_puts_the_event_store_there(tmp_path: Path, short_config: Path) -> None:
+    import subprocess
+    import sys
+
+    accel = np.vstack([bogie_accel(6, seed=1), bogie_accel(14, seed=2, pitch_roll_coupling=1.0)])
+    recording = tmp_path / "run.csv"
+    write_csv_recording(recording, 1.7e9 + np.arange(accel.shape[0]) / FS_HZ, accel)
+    short_config.write_text(short_config.read_text() + f'[source]\nkind = "replay"\npath = "{recording}"\nrealtime = false\n')
+    elsewhere = tmp_path / "elsewhere"
+    proc = subprocess.run([sys.executable, "-m", "bogiemon", "run", "--config", str(short_config), "--state-dir", str(elsewhere)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert [e.kind.value for e in EventStore(elsewhere, readonly=True).events()][:2] == ["SUSPECTED", "CONFIRMED"]
+    assert not (tmp_path / "state").exists()

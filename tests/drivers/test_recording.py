@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bogiemon.drivers import recording
+from bogiemon.drivers import recording_check, recording_csv, recording_parquet
 from bogiemon.drivers.recording import (
     ACCEL_LSB_MPS2,
     HEADER,
@@ -190,8 +190,8 @@ def test_the_streaming_reader_gives_the_csv_modules_rows_across_any_block_bounda
 ) -> None:  # fmt: skip
     # Small blocks and a short reference put the block edges, the CR of a CRLF cut between two
     # reads, blank lines and the start of the step checks everywhere in a file of a few rows.
-    monkeypatch.setattr(recording, "MAX_LINE_BYTES", block_bytes)
-    monkeypatch.setattr(recording, "REFERENCE_STEPS", reference_steps)
+    monkeypatch.setattr(recording_csv, "MAX_LINE_BYTES", block_bytes)
+    monkeypatch.setattr(recording_check, "REFERENCE_STEPS", reference_steps)
     rng = np.random.default_rng(n)
     lines = [HEADER] + [f"{1.7e9 + i / 500.0!r},{rng.normal():.6f},{rng.normal() * 1e-3!r},{9.81 + rng.normal():.9f}" for i in range(n)]
     if blank_every:
@@ -386,7 +386,7 @@ def test_a_gzip_compressed_parquet_recording_is_refused_saying_what_to_do(tmp_pa
 
 
 def test_a_parquet_row_group_larger_than_the_bound_is_refused_before_it_is_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(recording, "MAX_PARQUET_GROUP_ROWS", 1000)
+    monkeypatch.setattr(recording_parquet, "MAX_PARQUET_GROUP_ROWS", 1000)
     t, a = six_decimal_samples(3000)
     write_parquet_recording(tmp_path / "r.parquet", t, a)  # one row group of 3000 rows
     with pytest.raises(RecordingError, match=r"r.parquet: row group 0 holds 3000 rows, more than 1000; write it in row groups"):
@@ -425,7 +425,7 @@ def test_a_parquet_footer_that_claims_rows_its_pages_do_not_hold_is_one_error(tm
 def test_the_survey_counts_lines_as_the_byte_by_byte_reference_in_every_short_text() -> None:
     import itertools
 
-    from bogiemon.drivers.recording import _count_lines
+    from bogiemon.drivers.recording_csv import _count_lines
 
     def reference(data: bytes) -> tuple[int, int]:
         # A line break is CRLF, CR or LF; a line holding anything starts after one (or at 0).

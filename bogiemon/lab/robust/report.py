@@ -413,7 +413,7 @@ def _readme(
         f"Measured on the default method (**{default.method}**) beside the paper's method (**{scores[0].method}**), "
         f"per fault run: confirmed within {DETECTION_HORIZON_S:g} s of running with the fault. The last column is the "
         f"default method on the trend sequences, where the same wagon runs on with the fault for "
-        f"{_minutes(default)} over other tracks and speeds (not a target of the issue: what a keeper gets within the hour).",
+        f"{_minutes(default)} over other tracks and speeds (not a target: what a keeper gets within the hour).",
         "",
         *_table(
             ["target", "goal", default.method, "", scores[0].method, f"{default.method}, within {_minutes(default)}"],

@@ -330,7 +330,7 @@ def _readme(
         f"- **Plan '{plan.name}'** (per model): {plan.n_wagons} evaluation wagons and {plan.n_training_wagons} training "
         f"wagons; per wagon and load {plan.calibration_runs} commissioning runs of {plan.calibration_s:g} s and "
         f"{plan.healthy_runs} healthy test runs of {plan.healthy_s:g} s ({', '.join(f'{h:.1f} h on {m.upper()}' for m, h in healthy.items())} "
-        f"across both loads; the issue's figure is 100 h, `--full`), {plan.stop_runs} run(s) of {plan.stop_s:g} s with one "
+        f"across both loads; the targets' figure is 100 h, `--full`), {plan.stop_runs} run(s) of {plan.stop_s:g} s with one "
         f"or two stops (braking to 0 km/h, 60-120 s standing, starting again) and {plan.standing_runs} standing run(s) of "
         f"{plan.standing_s:g} s; {plan.sensor_runs} run(s) of {plan.sensor_s:g} s per load with the noisy sensor: "
         f"{SENSOR_DAMAGE[NOISY]}.",

@@ -1,0 +1,140 @@
+"""What a recording of samples is: its columns, the converter's range, the bounds of a file that
+is read, the formats it is written in, its error and the whole recording in memory (drivers/
+recording.py says how the formats hold it; the readers and writers are in recording_csv.py and
+recording_parquet.py, the checks of every row in recording_check.py)."""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Generator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bogiemon.drivers.base import Block
+from bogiemon.drivers.files import FileKind
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+HEADER = "time_s,a1,a2,a3"
+COLUMNS = ("time_s", "a1", "a2", "a3")
+
+# The converter's range (config/bogiemon.dbc: int16 samples, 1 LSB = 16 g / 32768, g = 9.80665
+# m/s^2): -16 g .. +16 g - 1 LSB. A sample beyond it is clipped to it at the source boundary.
+ACCEL_LSB_MPS2 = 16 * 9.80665 / 32768
+MIN_ACCEL_MPS2 = -32768 * ACCEL_LSB_MPS2  # -156.9064 m/s^2
+MAX_ACCEL_MPS2 = 32767 * ACCEL_LSB_MPS2  # +156.9016 m/s^2
+
+# A day at 1 kHz is 86.4 M rows: about 4 GiB of CSV, 2.8 GiB of float64 Parquet. Reading streams,
+# so the cap bounds the time a wrong file takes (a disk image named by mistake), not memory.
+MAX_RECORDING_BYTES = 16 << 30
+# Recordings' CSV compresses 2.5 to 6 times (simulated noise, a 16-bit converter's samples);
+# a constant signal a little better. A compression bomb does 1000 times.
+MAX_INFLATE_RATIO = 100.0
+# pyarrow parses the text a block at a time and a row must fit in one: the longest line read.
+MAX_LINE_BYTES = 1 << 20
+RECORDING_FILE = FileKind(
+    name="recording",
+    description=f"a recording is a CSV file ({HEADER}), plain or .csv.gz, or a .parquet file",
+    max_bytes=MAX_RECORDING_BYTES,
+    too_large="split the recording into files of a few hours",
+    gzip=True,
+    max_inflated_bytes=MAX_RECORDING_BYTES,
+    max_inflate_ratio=MAX_INFLATE_RATIO,
+    max_line_bytes=MAX_LINE_BYTES,
+)
+
+PARQUET_MAGIC = b"PAR1"
+PARQUET_SUFFIX = ".parquet"
+
+
+class RecordingFormat(enum.StrEnum):
+    """The formats a recording is written in (`[recorder] format`); read by any of its names."""
+
+    CSV_GZ = "csv.gz"
+    PARQUET = "parquet"
+
+    @property
+    def suffix(self) -> str:
+        return f".{self.value}"
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be used; the message names the file, the line and the remedy."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A whole recording in memory (read_recording); for recordings of minutes, not days."""
+
+    path: Path
+    time_s: NDArray[np.float64]  # (n,)
+    accel_mps2: NDArray[np.float64]  # (n, 3)
+    fs_hz: float
+    clipped_samples: int = 0  # samples beyond the converter's range, clipped to it
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_samples / self.fs_hz
+
+    @property
+    def start_s(self) -> float:
+        return float(self.time_s[0])
+
+    def blocks(self, block_n: int) -> list[Block]:
+        """The recording cut into consecutive Blocks of block_n samples (the last may be shorter)."""
+        return [
+            Block(start_s=float(self.time_s[i]), fs_hz=self.fs_hz, accel_mps2=self.accel_mps2[i : i + block_n])
+            for i in range(0, self.n_samples, block_n)
+        ]
+
+    def chunks(self, chunk_n: int = 65536) -> Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None]:
+        """(time_s, accel_mps2) in consecutive chunks, as RecordingReader.chunks gives them."""
+        for i in range(0, self.n_samples, chunk_n):
+            yield self.time_s[i : i + chunk_n], self.accel_mps2[i : i + chunk_n]
+
+
+def is_sample_recording_name(path: str | Path) -> bool:
+    """Whether a file name is a recording of samples (.csv, .csv.gz, .parquet), not a CAN log's."""
+    return str(path).lower().endswith((".csv", ".csv.gz", PARQUET_SUFFIX))
+
+
+def arrow_columns(batch: pa.RecordBatch) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(time_s (m,), accel_mps2 (m, 3)) of a record batch of the four columns, as numpy views."""
+    time_s = _numpy(batch.column(0))
+    accel = np.column_stack([_numpy(batch.column(i)) for i in (1, 2, 3)])
+    return time_s, accel
+
+
+def _numpy(column: pa.Array) -> NDArray[np.float64]:
+    """A float64 column as a numpy view of its values' buffer (no nulls: refused before, and none
+    in the CSV's types). Array.to_numpy gives the same view, after importing pandas (a tenth of a
+    second of a command's start-up) to learn that it need not convert."""
+    if column.null_count:
+        return column.to_numpy(zero_copy_only=False)
+    values = np.frombuffer(column.buffers()[1], dtype=np.float64, count=len(column), offset=8 * column.offset)
+    values.flags.writeable = False  # as to_numpy's view: the file's values, not a scratch array
+    return values
+
+
+def short_error(exc: BaseException, limit: int = 200) -> str:
+    """An exception's message for a one-line error, cut to `limit` characters."""
+    text = str(exc) or type(exc).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def recording_rows(time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(time_s (n,), accel_mps2 (n, 3)) as float64, or ValueError if they do not form a recording."""
+    time_s = np.asarray(time_s, dtype=np.float64)
+    accel = np.asarray(accel_mps2, dtype=np.float64)
+    if accel.shape != (time_s.shape[0], 3):
+        raise ValueError(f"time_s {time_s.shape} and accel_mps2 {accel.shape} do not form a recording")
+    return time_s, accel
