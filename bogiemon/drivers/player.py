@@ -192,14 +192,15 @@ def write_can_log(
     start_s: float,
     channel: str = "can0",
 ) -> int:
-    """Write a recording as a CAN log python-can reads back (.log as candump -L, .asc, .blf); returns frames.
+    """Write a recording as a CAN log python-can reads back (.log as candump -L, .asc, .blf, .trc,
+    python-can's .csv and .db, .mf4 with asammdf); returns frames.
 
-    channel names the interface in a .log (what canplayer sends on); .asc and .blf number channels.
+    channel names the interface in a .log (what canplayer sends on); the others number channels.
     """
     n = 0
     with can.Logger(str(path)) as writer:  # dispatches on the suffix; reads no config
         for _, message in iter_messages(layout, accel_mps2, fs_hz, start_s=start_s):
-            message.channel = channel if str(path).endswith(".log") else 0
+            message.channel = channel if str(path).endswith(".log") else 0 if not str(path).endswith(".trc") else 1
             writer.on_message_received(message)
             n += 1
     return n

@@ -15,9 +15,9 @@ from typing import BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.files import UntrustedFile, open_untrusted, size_text
+from bogiemon.drivers.files import UntrustedFile, size_text
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, RecordingError, arrow_columns, recording_rows
+from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, arrow_columns, recording_rows
 
 _ROW_FORMAT = "%.6f,%.6f,%.6f,%.6f\n"
 _WRITE_CHUNK_ROWS = 65536
@@ -37,13 +37,12 @@ class CsvRecordingReader(RecordingReader):
 
     format = "csv"
 
-    def __init__(self, path: Path) -> None:
-        super().__init__()
-        self.path = path
+    def __init__(self, file: UntrustedFile) -> None:
+        super().__init__(file)
         self._header_bytes = 0
 
     def open(self, min_samples: int) -> None:
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self.file.reopen() as f:
             first_chunk = f.read(MAX_LINE_BYTES + 2)
             end = re.search(rb"\r\n|\r|\n", first_chunk)
             header = first_chunk[: end.start()] if end else first_chunk
@@ -68,7 +67,7 @@ class CsvRecordingReader(RecordingReader):
 
     def _data_lines(self) -> Iterator[tuple[int, bytes]]:
         """(line number, bytes) of every line after the header."""
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self.file.reopen() as f:
             _skip(f, self._header_bytes)
             yield from f.lines(first_number=2)
 
@@ -98,7 +97,7 @@ class CsvRecordingReader(RecordingReader):
                 yield arrow_columns(batch)
 
         number = 2  # the first line of the block
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self.file.reopen() as f:
             _skip(f, self._header_bytes)
             try:
                 for block in _line_blocks(f):
