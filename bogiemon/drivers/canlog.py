@@ -19,6 +19,7 @@ with the remedy: record with `candump -L`.
 from __future__ import annotations
 
 import base64
+import os
 import sqlite3
 import zlib
 from collections.abc import Callable, Generator, Iterable, Iterator
@@ -141,6 +142,15 @@ class LogFrames:
 
     def __iter__(self) -> Iterator[FrameBatch]:
         return self._batches
+
+    @property
+    def fraction_read(self) -> float:
+        """How much of the file has been read, 0 to 1: its descriptor's position on disk (an MF4's
+        and an SQLite log's are read elsewhere: 0 until they end)."""
+        try:
+            return min(1.0, os.lseek(self._file.fileno(), 0, os.SEEK_CUR) / max(1, self._file.size_bytes))
+        except (OSError, ValueError):
+            return 1.0
 
     def close(self) -> None:
         close = getattr(self._batches, "close", None)

@@ -276,10 +276,15 @@ def write_csv_recording(
 
 def _write_rows(f: BinaryIO | gzip.GzipFile, rows: NDArray[np.float64]) -> None:
     f.write((HEADER + "\n").encode("ascii"))
-    # Exactly np.savetxt(fmt="%.6f")'s text (the same printf formatting), but one %-format call
-    # per chunk of rows instead of one per row: 1.6x faster (3.7 s -> 2.3 s for an hour at 500 Hz
-    # here), memory bounded by the chunk. The text is ASCII: digits, signs, points and commas.
     for start in range(0, rows.shape[0], _WRITE_CHUNK_ROWS):
-        chunk = rows[start : start + _WRITE_CHUNK_ROWS]
-        f.write(((_ROW_FORMAT * chunk.shape[0]) % tuple(chunk.ravel().tolist())).encode("ascii"))
+        f.write(format_rows(rows[start : start + _WRITE_CHUNK_ROWS]))
+
+
+def format_rows(rows: NDArray[np.float64]) -> bytes:
+    """Rows (m, 4) of a recording as its CSV text, 6 decimals.
+
+    Exactly np.savetxt(fmt="%.6f")'s text (the same printf formatting), but one %-format call per
+    chunk of rows instead of one per row: 1.6x faster (3.7 s -> 2.3 s for an hour at 500 Hz here).
+    The text is ASCII: digits, signs, points and commas."""
+    return ((_ROW_FORMAT * rows.shape[0]) % tuple(rows.ravel().tolist())).encode("ascii")
 

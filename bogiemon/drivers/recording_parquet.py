@@ -119,6 +119,11 @@ class ParquetRecordingReader(RecordingReader):
             row += table.num_rows
 
 
+def parquet_options() -> dict[str, object]:
+    """How a recording's columns are written (the writer's and a streaming ParquetWriter's)."""
+    return {"compression": "zstd", "use_dictionary": list(COLUMNS[1:]), "use_byte_stream_split": [COLUMNS[0]]}
+
+
 def write_parquet_recording(
     path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False
 ) -> None:
@@ -136,10 +141,7 @@ def write_parquet_recording(
     schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in COLUMNS])
     table = pa.Table.from_arrays([pa.array(time_s), *(pa.array(np.ascontiguousarray(accel[:, i])) for i in range(3))], schema=schema)
     with Path(path).open("wb") as raw:
-        pq.write_table(
-            table, raw, row_group_size=PARQUET_GROUP_ROWS, compression="zstd",
-            use_dictionary=list(COLUMNS[1:]), use_byte_stream_split=[COLUMNS[0]],
-        )  # fmt: skip
+        pq.write_table(table, raw, row_group_size=PARQUET_GROUP_ROWS, **parquet_options())
         if fsync:
             raw.flush()
             os.fsync(raw.fileno())

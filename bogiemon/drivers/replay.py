@@ -80,6 +80,11 @@ class RecordingReplaySource(Source):
         self._delivered = 0
         self._start_wall_s: float | None = None
 
+    @property
+    def fraction_read(self) -> float:
+        """How much of the recording has been delivered, 0 to 1 (for a progress bar)."""
+        return min(1.0, self._delivered / max(1, self.reader.n_samples))
+
     def _fill(self) -> None:
         """Read on until a whole block is pending or the file has ended."""
         while self._time_s.shape[0] < self.max_block_n and not self._ended:

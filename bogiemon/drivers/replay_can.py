@@ -74,6 +74,11 @@ class CanLogReplaySource(Source):
         return self._log.start_s
 
     @property
+    def fraction_read(self) -> float:
+        """How much of the log's file has been read, 0 to 1 (for a progress bar)."""
+        return self._log.fraction_read
+
+    @property
     def relative(self) -> bool:
         return self._log.relative
 
