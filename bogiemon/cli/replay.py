@@ -6,9 +6,11 @@ import argparse
 import json
 import sys
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from bogiemon.cli.events import format_event
+from bogiemon.cli.mapping import add_mapping_arguments, with_mapping
 
 if TYPE_CHECKING:
     from bogiemon.daemon.sinks import EventSink
@@ -22,6 +24,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--json", action="store_true", help="events as JSON lines")
     p.add_argument("--realtime", action="store_true", help="pace the recordings at real time instead of as fast as possible")
     p.add_argument("--state-dir", help="keep the event store here (default: a temporary one)")
+    add_mapping_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -29,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.config import load_config
     from bogiemon.daemon.replay import replay
 
-    config = load_config(args.config)
+    config = with_mapping(load_config(args.config), args)
     summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
     c = summary.counters
     print(
@@ -44,7 +47,22 @@ def run(args: argparse.Namespace) -> int:
         clipped = report.source_counters.get("clipped_samples", 0)
         if clipped:
             print(clipped_text(report.path, clipped), file=sys.stderr)
+        for line in timing_text(report.path, report.source_counters):
+            print(line, file=sys.stderr)
     return 0
+
+
+def timing_text(path: str, counters: Mapping[str, int]) -> list[str]:
+    """The lines saying a recording's jittered time stamps were resampled and its gaps found."""
+    lines = []
+    resampled = counters.get("resampled_samples", 0)
+    if resampled:
+        lines.append(f"{path}: {resampled} samples with jittered time stamps resampled onto the recording's nominal grid")
+    gaps = counters.get("recording_gaps", 0)
+    if gaps:
+        what = "a gap" if gaps == 1 else f"{gaps} gaps"
+        lines.append(f"{path}: {what} in the time stamps (samples missing): a new segment after each, no window spans one")
+    return lines
 
 
 def clipped_text(path: str, clipped: int) -> str:
