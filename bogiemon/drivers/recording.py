@@ -69,6 +69,7 @@ from bogiemon.drivers.recording_format import (
     MAX_INFLATE_RATIO,
     MAX_LINE_BYTES,
     MAX_RECORDING_BYTES,
+    MF4_MAGIC,
     MIN_ACCEL_MPS2,
     PARQUET_MAGIC,
     PARQUET_SUFFIX,
@@ -104,7 +105,13 @@ def open_recording_reader(path: str | Path | UntrustedFile, min_samples: int = 2
     f = path.reopen(RECORDING_FILE) if isinstance(path, UntrustedFile) else open_untrusted(path, RECORDING_FILE, RecordingError)
     try:
         parquet = f.path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and f.head(4) == PARQUET_MAGIC)
-        reader: RecordingReader = ParquetRecordingReader(f, columns) if parquet else CsvRecordingReader(f, columns)
+        reader: RecordingReader
+        if not f.compressed and f.head(8) in MF4_MAGIC:
+            from bogiemon.drivers.recording_mf4 import Mf4RecordingReader  # asammdf, for MF4 only
+
+            reader = Mf4RecordingReader(f, columns)
+        else:
+            reader = ParquetRecordingReader(f, columns) if parquet else CsvRecordingReader(f, columns)
         reader.open(min_samples)
     except BaseException:
         f.close()

@@ -54,6 +54,7 @@ RECORDING_FILE = FileKind(
 )
 
 PARQUET_MAGIC = b"PAR1"
+MF4_MAGIC = (b"MDF     ", b"UnFinMF ")  # an MF4's identification block: finished, or a logger's unfinished file
 PARQUET_SUFFIX = ".parquet"
 
 

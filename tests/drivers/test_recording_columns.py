@@ -174,3 +174,39 @@ def test_a_row_closer_than_the_jitter_allows_is_an_error_naming_its_line(tmp_pat
     write_csv_recording(tmp_path / "stray.csv", t, bogie(t.size, STANDARD_GRAVITY_MPS2))
     with pytest.raises(RecordingError, match=r"stray.csv: line 3002: time step 0.0004 s is shorter than the file's 0.002 s \(500 Hz\)"):
         read_recording(tmp_path / "stray.csv")
+
+
+# --- MF4 of signals -------------------------------------------------------------------------------
+
+
+def write_mf4_signals(path: Path, time_s: np.ndarray, values: np.ndarray, names: tuple[str, ...]) -> None:
+    """An MF4 of signals as a bench writes it with asammdf: one group, its time master and channels."""
+    from asammdf import MDF, Signal
+
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(values[:, i], time_s, name=name, unit="") for i, name in enumerate(names)])
+    mdf.save(path, overwrite=True)
+    mdf.close()
+
+
+def test_an_mf4_of_signals_in_g_is_refused_and_read_with_its_unit_and_channel_names(tmp_path: Path) -> None:
+    pytest.importorskip("asammdf", reason="the mf4 extra is installed in the test venv")
+    t = np.arange(3000) / FS_HZ
+    a = bogie(t.size, 1.0)
+    path = tmp_path / "bench.mf4"
+    write_mf4_signals(path, t, a, ("acc_fl", "acc_fr", "acc_rl"))
+    with pytest.raises(RecordingError, match=r"bench.mf4: no channel a1, a2, a3 \(its channels: .*acc_fl.*--columns time=NAME"):
+        open_recording_reader(path)
+    columns = parse_columns("a1=acc_fl,a2=acc_fr,a3=acc_rl")
+    with pytest.raises(RecordingError, match=r"bench.mf4: these values look like g"):
+        open_recording_reader(path, columns=columns)
+    reader = open_recording_reader(path, columns=ColumnMap(columns.time, columns.time_unit, columns.channels, AccelUnit.G))
+    try:
+        parts = list(reader.chunks())
+        start_s = reader.start_s
+    finally:
+        reader.close()
+    assert reader.format == "mf4" and reader.fs_hz == FS_HZ
+    # absolute times (the file's start, about 1.76e9 s): float64 holds them to 2.4e-7 s
+    np.testing.assert_allclose(np.concatenate([p[0] for p in parts]) - start_s, t, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), a * STANDARD_GRAVITY_MPS2)
