@@ -210,3 +210,16 @@ def test_an_mf4_of_signals_in_g_is_refused_and_read_with_its_unit_and_channel_na
     # absolute times (the file's start, about 1.76e9 s): float64 holds them to 2.4e-7 s
     np.testing.assert_allclose(np.concatenate([p[0] for p in parts]) - start_s, t, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(np.concatenate([p[1] for p in parts]), a * STANDARD_GRAVITY_MPS2)
+
+
+def test_jitter_after_a_long_clean_stretch_of_a_clock_off_the_whole_hertz_loses_no_time(tmp_path: Path) -> None:
+    # 500.2 Hz is taken as 500 (within 0.05 %); after 60 s, 0.024 % off, the logger's stamps jitter.
+    n = 40_000
+    t = np.arange(n) / 500.2
+    t[30_000:] += np.random.default_rng(5).uniform(-0.0002, 0.0002, n - 30_000)
+    write_csv_recording(tmp_path / "drift.csv", t, bogie(n, STANDARD_GRAVITY_MPS2))
+    reader = open_recording_reader(tmp_path / "drift.csv")
+    got_t = np.concatenate([p[0] for p in reader.chunks()])
+    assert reader.fs_hz == FS_HZ and reader.gap_count == 0 and reader.resampled_samples > 0
+    assert float(np.max(np.diff(got_t))) < 1.01 / FS_HZ  # no time skipped where the resampling starts
+    assert got_t[-1] == pytest.approx(t[-1], abs=1.0 / FS_HZ)
