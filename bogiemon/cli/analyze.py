@@ -15,7 +15,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p = sub.add_parser("analyze", help="compute the fault indicators of recordings, window by window")
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="recordings (.csv, .csv.gz, .parquet, MF4 of signals) or CAN logs (candump -L .log, .asc, .blf, .trc, "
-                        "python-can's .csv and .db, MF4 bus logs; .gz where they are text), in time order")  # fmt: skip
+                        "python-can's .csv and .db, MF4 bus logs; .gz where they are text), in time order; a folder: its files in name order")  # fmt: skip
     p.add_argument("--config", help="config file (default: the shipped default config)")
     p.add_argument("--json", action="store_true", help="one JSON object per window, with every field")
     add_mapping_arguments(p)
@@ -26,12 +26,13 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.cli.replay import timing_text
     from bogiemon.daemon.analysis import analyze_recording, describe_source, indicators_as_dict, open_recording
     from bogiemon.daemon.config import load_config
-    from bogiemon.drivers.recording import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2
+    from bogiemon.drivers.recording import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, RecordingError
+    from bogiemon.drivers.sniff import expand_folders
 
     config = with_mapping(load_config(args.config), args)
     out = sys.stdout
     try:
-        for path in args.files:
+        for path in expand_folders(args.files, RecordingError):  # a folder: its recordings, in name order
             source = open_recording(path, config)
             try:
                 if not args.json:

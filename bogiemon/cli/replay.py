@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("replay", help="run recordings (CSV, Parquet or CAN logs) through the daemon's pipeline and print its events")
-    p.add_argument("files", nargs="+", metavar="RECORDING", help="recordings (.csv, .csv.gz, .parquet) or CAN logs (.log, .asc, .blf), in time order")
+    p.add_argument("files", nargs="+", metavar="RECORDING", help="recordings (.csv, .csv.gz, .parquet, MF4) or CAN logs (.log, .asc, .blf, ...), in time order; a folder: its recordings in name order")
     p.add_argument("--config", help="config file (default: the shipped default config)")
     p.add_argument("--load", choices=("auto", "full", "tare"), help="load state, overriding decision.load (auto: estimated from the signals)")
     p.add_argument("--json", action="store_true", help="events as JSON lines")
@@ -33,7 +33,11 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.replay import replay
 
     config = with_mapping(load_config(args.config), args)
-    summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
+    from bogiemon.drivers.recording import RecordingError
+    from bogiemon.drivers.sniff import expand_folders
+
+    files = expand_folders(args.files, RecordingError)  # a folder: its recordings, in name order
+    summary = replay(files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
     c = summary.counters
     print(
         f"replayed {summary.recordings} recording(s): {c.windows} windows, {c.judged} judged, {c.gated} gated, "

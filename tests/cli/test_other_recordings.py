@@ -78,3 +78,24 @@ def test_replay_calls_twenty_seconds_missing_a_gap_not_a_rate(tmp_path: Path, co
     assert f"{path}: a gap in the time stamps (samples missing): a new segment after each, no window spans one" in err
     assert "replayed 1 recording(s): 6 windows, " in err  # three in each 10 s segment, none across the gap
     assert "resample" not in err.replace("resampled", "")
+
+
+def test_replay_and_analyze_of_a_folder_read_its_recordings_in_name_order(tmp_path: Path, config: Path, capsys) -> None:
+    folder = tmp_path / "day"
+    folder.mkdir()
+    a = bogie_g(1000) * STANDARD_GRAVITY_MPS2
+    write_csv_recording(folder / "0002.csv", 20.0 + np.arange(1000) / FS_HZ, a)
+    write_csv_recording(folder / "0001.csv.gz", np.arange(1000) / FS_HZ, a)
+    (folder / "README.txt").write_text("the logger's notes\n")
+    assert main(["replay", str(folder), "--config", str(config)]) == 0
+    assert "replayed 2 recording(s): 6 windows, " in capsys.readouterr().err
+    assert main(["analyze", str(folder), "--config", str(config)]) == 0
+    headers = [line for line in capsys.readouterr().out.splitlines() if line.startswith("# ")]
+    assert [h.split(":")[0] for h in headers] == [f"# {folder / '0001.csv.gz'}", f"# {folder / '0002.csv'}"]
+
+
+def test_a_folder_holding_no_recording_is_one_line(tmp_path: Path, config: Path, capsys) -> None:
+    (tmp_path / "empty").mkdir()
+    assert main(["analyze", str(tmp_path / "empty"), "--config", str(config)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"bogiemon: error: {tmp_path / 'empty'}: a folder holding no recording or CAN log (.csv, .csv.gz, .parquet, .mf4, .log, .asc, .blf, .trc, ...)"]
