@@ -99,3 +99,19 @@ def test_a_folder_holding_no_recording_is_one_line(tmp_path: Path, config: Path,
     assert main(["analyze", str(tmp_path / "empty"), "--config", str(config)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"bogiemon: error: {tmp_path / 'empty'}: a folder holding no recording or CAN log (.csv, .csv.gz, .parquet, .mf4, .log, .asc, .blf, .trc, ...)"]
+
+
+def test_convert_writes_another_loggers_recording_in_g_as_bogiemons_own_in_m_per_s2(tmp_path: Path, capsys) -> None:
+    from bogiemon.drivers.recording import read_recording
+
+    t = np.arange(1400) / FS_HZ
+    a = np.round(bogie_g(1400), 6)
+    lines = ["ts;acc_fl;acc_fr;acc_rl"] + [f"{float(x)!r};{y:.6f};{z:.6f};{w:.6f}" for x, (y, z, w) in zip(t, a, strict=True)]
+    (tmp_path / "logger.csv").write_text("\n".join(lines) + "\n")
+    args = ["convert", str(tmp_path / "logger.csv"), "-o", str(tmp_path / "own.parquet"), "--columns", "a1=acc_fl,a2=acc_fr,a3=acc_rl"]
+    assert main(args) == 2
+    assert "these values look like g" in capsys.readouterr().err
+    assert main([*args, "--unit", "g"]) == 0
+    rec = read_recording(tmp_path / "own.parquet")
+    np.testing.assert_array_equal(rec.accel_mps2, a * STANDARD_GRAVITY_MPS2)
+    np.testing.assert_allclose(rec.time_s, t, rtol=0, atol=1e-9)  # a block's times: its start + k / fs
