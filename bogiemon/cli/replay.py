@@ -57,11 +57,12 @@ def clipped_text(path: str, clipped: int) -> str:
 
 def print_sink(as_json: bool) -> EventSink:
     """A sink that prints each committed event, as a line or as JSON."""
-    from bogiemon.judgement.events import Event
+    from bogiemon.daemon.event_json import event_body
     from bogiemon.daemon.sinks import EventSink
+    from bogiemon.judgement.events import Event
 
     class PrintSink(EventSink):
         def publish(self, event: Event) -> None:
-            print(json.dumps(event.as_dict()) if as_json else format_event(event), flush=True)
+            print(json.dumps(event_body(event)) if as_json else format_event(event), flush=True)
 
     return PrintSink()

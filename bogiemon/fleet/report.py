@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bogiemon.daemon.messages import EventMessage
+from bogiemon.judgement.events import SensorFaultDetails
 from bogiemon.drivers.atomic import write_bytes_atomically
 from bogiemon.fleet import svg
 from bogiemon.fleet.paths import output_file, shown
@@ -206,9 +207,9 @@ def _table(pages: Sequence[WagonPage]) -> str:
 
 def _event_summary(m: EventMessage) -> str:
     parts = [f"{name} {_fmt(v)}" for name, v in m.indicators.items()]
-    problems = m.details.get("problems")
-    if isinstance(problems, dict):
-        parts += [f"{ch}: {', '.join(str(p) for p in ps)}" for ch, ps in problems.items() if isinstance(ps, list)]
+    details = m.details_record()
+    if isinstance(details, SensorFaultDetails):
+        parts += [f"{ch}: {', '.join(ps)}" for ch, ps in details.problems.items()]
     return _e("; ".join(parts))
 
 

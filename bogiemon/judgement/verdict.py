@@ -175,8 +175,8 @@ class WindowJudge:
     def judge(self, window: WindowIndicators, status: Status = ALL_OK, gaps_last_hour: int = 0) -> WindowVerdict:
         """The window's verdict, its outcome counted."""
         verdict = self._judge(window, status, gaps_last_hour)
-        why = {} if verdict.unfamiliar is None else {"unlike": verdict.unfamiliar}
-        said = self.coverage.update(window, verdict.judgement is not None, verdict.outcome is Outcome.UNFAMILIAR, why)
+        unfamiliar = verdict.unfamiliar if verdict.outcome is Outcome.UNFAMILIAR else None
+        said = self.coverage.update(window, verdict.judgement is not None, unfamiliar)
         self.counts.count(verdict.outcome)
         return dataclasses.replace(verdict, events=verdict.events + tuple(said)) if said else verdict
 

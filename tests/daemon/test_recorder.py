@@ -13,7 +13,9 @@ import pytest
 import structlog
 
 from bogiemon.daemon.config import BogiemonConfig, load_config, parse_config
-from bogiemon.judgement.events import EventKind
+from bogiemon.detection.kinematics import Corner
+from bogiemon.judgement.events import ConfirmedDetails, EventKind, Trigger
+from tests.judgement.event_examples import details_as
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.daemon.recorder import Recorder, RecorderSettings
@@ -377,7 +379,7 @@ def test_the_confirmed_snapshot_of_a_broken_spring_replayed_alone_from_a_fresh_s
     run.feed(blocks)
     run.recorder.close()
     (confirmed,) = [e for e in run.events if e.kind is EventKind.CONFIRMED]
-    assert confirmed.details["trigger"] == "windows"
+    assert details_as(confirmed, ConfirmedDetails).trigger is Trigger.WINDOWS
     (snapshot,) = [tmp_path / "rec" / n for n in recordings(tmp_path / "rec") if n.endswith("_confirmed.csv.gz")]
     recording = read_csv_recording(snapshot)
     assert recording.time_s[0] > start_s + 1.0  # cut: the lead-in before the confirming windows, not the whole run
@@ -389,7 +391,8 @@ def test_the_confirmed_snapshot_of_a_broken_spring_replayed_alone_from_a_fresh_s
     assert replayed.time_s == pytest.approx(confirmed.time_s, abs=1e-3)  # at the same window
     # The same diagnosis offline as onboard; its corner the broken spring's, or "unknown" where the
     # three confirming windows' 4-8 Hz couplings do not single it out (judgement/diagnosis.py).
-    assert replayed.details["diagnosis"] == confirmed.details["diagnosis"]
-    assert confirmed.details["diagnosis"]["corners"] in (["leading-left", "trailing-right"], [])
-    assert confirmed.details["diagnosis"]["best_match"].endswith("(leading-left if softer)")
-    assert replayed.details["alarm_windows"] == confirmed.details["alarm_windows"]
+    onboard, offline = details_as(confirmed, ConfirmedDetails), details_as(replayed, ConfirmedDetails)
+    assert offline.diagnosis == onboard.diagnosis and onboard.diagnosis is not None
+    assert onboard.diagnosis.corners in ((Corner.LEADING_LEFT, Corner.TRAILING_RIGHT), ())
+    assert onboard.diagnosis.best_match.endswith("(leading-left if softer)")
+    assert offline.alarm_windows == onboard.alarm_windows
