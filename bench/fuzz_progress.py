@@ -1,5 +1,10 @@
 """The slot where a fuzz worker says which input it runs and since when, read by the parent's watchdog.
 
+Since when on two clocks: the wall clock (time.monotonic()) and the worker's own CPU time
+(time.process_time(), every thread of it). The watchdog judges a hang by the CPU time an input took
+(cpu_time_s() reads a process's from /proc): a machine busy with other work slows an input's wall
+time, never its CPU time; the wall clock only catches an input blocked without using the CPU.
+
 The worker writes and the parent reads the same shared memory without a lock (a lock held by a
 worker the parent kills would stop the parent too). The slot is a sequence lock: the worker makes
 the sequence odd, writes the input's index and start, and makes it even again; the parent reads the
@@ -11,12 +16,16 @@ a half-written pair (reading the start twice, once to test it and once to use it
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import MutableSequence
 from dataclasses import dataclass
+from pathlib import Path
 
-SEQUENCE, INDEX, STARTED = 0, 1, 2
-SLOT_SIZE = 3  # doubles: the sequence, the input's index, its start (time.monotonic(); 0: no input running)
+SEQUENCE, INDEX, STARTED, STARTED_CPU = 0, 1, 2, 3
+# Doubles: the sequence, the input's index, its start (time.monotonic(); 0: no input running) and
+# the worker's CPU time then (time.process_time()).
+SLOT_SIZE = 4
 READ_TRIES = 100  # a reader retries a torn read this often, then reports nothing for this look
 
 
@@ -24,6 +33,7 @@ READ_TRIES = 100  # a reader retries a torn read this often, then reports nothin
 class Running:
     index: int  # the input being run
     started_s: float  # when it started, time.monotonic()
+    started_cpu_s: float  # the worker's CPU time then, time.process_time()
 
 
 class ProgressSlot:
@@ -34,34 +44,45 @@ class ProgressSlot:
             raise ValueError(f"a progress slot is {SLOT_SIZE} doubles, not {len(cells)}")
         self.cells = cells
 
-    def _write(self, index: int, started_s: float) -> None:
+    def _write(self, index: int, started_s: float, started_cpu_s: float) -> None:
         sequence = self.cells[SEQUENCE]
         self.cells[SEQUENCE] = sequence + 1.0  # odd: being written
         self.cells[INDEX] = float(index)
         self.cells[STARTED] = started_s
+        self.cells[STARTED_CPU] = started_cpu_s
         self.cells[SEQUENCE] = sequence + 2.0  # even: whole
 
     def begin(self, index: int) -> None:
         """The worker starts input `index` now."""
-        self._write(index, time.monotonic())
+        self._write(index, time.monotonic(), time.process_time())
 
     def idle(self) -> None:
         """The worker runs no input (between inputs, or waiting for a batch)."""
-        self._write(int(self.cells[INDEX]), 0.0)
+        self._write(int(self.cells[INDEX]), 0.0, 0.0)
 
     def running(self) -> Running | None:
         """The input being run and its start, read whole; None when no input runs (or every try was torn)."""
         for _ in range(READ_TRIES):
             before = self.cells[SEQUENCE]
-            index, started_s = self.cells[INDEX], self.cells[STARTED]
+            index, started_s, started_cpu_s = self.cells[INDEX], self.cells[STARTED], self.cells[STARTED_CPU]
             if before % 2.0 == 0.0 and self.cells[SEQUENCE] == before:
-                return Running(int(index), started_s) if started_s > 0.0 else None
+                return Running(int(index), started_s, started_cpu_s) if started_s > 0.0 else None
         return None  # a worker this busy is not stuck: the next look reads it whole
 
     def running_s(self, now_s: float) -> float:
         """How long the current input has run at now_s (time.monotonic()); 0 when none runs."""
         current = self.running()
         return max(0.0, now_s - current.started_s) if current is not None else 0.0
+
+    def took(self, now_s: float, cpu_now_s: float | None) -> tuple[float, float | None]:
+        """The current input's wall and CPU seconds so far, read whole (0 and 0 when none runs;
+        CPU None where the worker's CPU time cannot be read): now_s is time.monotonic(), cpu_now_s
+        the worker's CPU time now (cpu_time_s)."""
+        current = self.running()
+        if current is None:
+            return 0.0, 0.0
+        cpu_s = None if cpu_now_s is None else max(0.0, cpu_now_s - current.started_cpu_s)
+        return max(0.0, now_s - current.started_s), cpu_s
 
     def last_index(self) -> int:
         """The index of the input last begun (whether or not it still runs)."""
@@ -71,3 +92,20 @@ class ProgressSlot:
             if before % 2.0 == 0.0 and self.cells[SEQUENCE] == before:
                 return int(index)
         return int(self.cells[INDEX])
+
+
+_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 0.01
+
+
+def cpu_time_s(pid: int) -> float | None:
+    """A process's CPU time so far (user and system, every thread), as its time.process_time()
+    reads it to the kernel's tick; None where /proc cannot tell (another OS, a process gone)."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_bytes().decode("ascii", "replace")
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2 :].split()  # the name, in parentheses, may hold spaces
+    try:
+        return (int(fields[11]) + int(fields[12])) * _TICK_S  # utime, stime: fields 14 and 15 of proc(5)
+    except (IndexError, ValueError):
+        return None
