@@ -99,6 +99,7 @@ SPECS: tuple[Spec, ...] = (
     Spec("recorder-disk", "fuzz_recorder", 300, 20, 60.0, 5, "the recorder beside the event store on a small tmpfs filled to random levels"),
     Spec("reload", "fuzz_reload", 150, 12, 90.0, 3, "the service over a broken spring under random SIGHUP reloads, good, changed and broken"),
     Spec("fleet", "fuzz_fleet", 1000, 8, 30.0, 4, "fleet analyze/judge/report on damaged trees, partitions and JUDGED"),
+    Spec("signals", "fuzz_signals", 120, 4, 30.0, 2, "a real `bogiemon run` under floods of SIGHUP while it starts, runs and stops"),
 )  # fmt: skip
 BY_NAME = {s.name: s for s in SPECS}
 
@@ -129,6 +130,7 @@ CLEAR_ERRORS: dict[str, tuple[str, ...]] = {
     "recording-parquet": (RECORDING_ERROR,),
     "recorder-disk": (),  # nothing the recorder meets on a full disk is the user's error: it counts and goes on
     "reload": (),  # a bad config on SIGHUP is rejected and logged, never raised
+    "signals": (),  # what a signal does is the process's exit status and log, judged by the target
 }  # a target without an entry has no clear error: every exception it lets through is a crash
 
 

@@ -18,9 +18,10 @@ FUZZ = REPO / "bench" / "fuzz.py"
 # listener, the publisher's outbox and the event store's reader.
 DECODERS = {"can-hub", "can-per-node", "serial-parser", "serial-source", "csv", "canlog-log", "canlog-asc", "canlog-blf",
             "config", "mqtt-schema", "mqtt-listen", "outbox", "store"}  # fmt: skip
-# What issue 27 reached: compressed and Parquet recordings, the recorder on a full disk, reloads. One
-# input of these is a whole file or a daemon's run: their quick run is a few hundred or a dozen.
-HOSTILE = {"recording-gz": 200, "recording-parquet": 200, "recorder-disk": 20, "reload": 12}
+# What issue 27 reached: compressed and Parquet recordings, the recorder on a full disk, reloads; and
+# floods of signals at a `bogiemon run` process. One input of these is a whole file or a daemon's
+# run: their quick run is a few hundred, a dozen or a few.
+HOSTILE = {"recording-gz": 200, "recording-parquet": 200, "recorder-disk": 20, "reload": 12, "signals": 4}
 TARGETS = DECODERS | set(HOSTILE)
 RUN_DEADLINE_S = 1200.0  # a safety net: the quick run takes about four minutes
 

@@ -3,20 +3,17 @@
 The main thread only supervises: it tells systemd READY=1 once the first block went through,
 pings WATCHDOG=1 only while blocks keep moving (a stalled source or core lets systemd restart
 us), publishes STATUS= with the latest window, reloads on SIGHUP (a bad new config is logged
-and rejected, the old one keeps running) and drains on SIGTERM. Signal handlers only set flags.
+and rejected, the old one keeps running) and drains on SIGTERM. Signal handlers only set a flag and
+write a byte to a pipe the main thread sleeps on (daemon/signals.py).
 While it runs, numpy's BLAS keeps to one thread (daemon/blas.py says why).
 """
 
 from __future__ import annotations
 
 import math
-import signal
-import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 
 from bogiemon.daemon.blas import limit_blas_threads
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
@@ -30,6 +27,7 @@ from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.recorder import Recorder, keep_the_reserve_free
 from bogiemon.daemon.ringbuffer import BlockRing
+from bogiemon.daemon.signals import Requests
 from bogiemon.daemon.sinks import EventSink, LogSink
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
@@ -68,12 +66,6 @@ def status_line(report: WindowVerdict | None, monitor: Monitor) -> str:
     return ", ".join(parts)
 
 
-@dataclass
-class _Flags:
-    stop: threading.Event
-    reload: threading.Event
-
-
 class Service:
     def __init__(
         self,
@@ -83,7 +75,13 @@ class Service:
         notifier: Notifier | None = None,
         sinks: list[EventSink] | None = None,
         observers: list[Callable[[WindowVerdict], None]] | None = None,
+        requests: Requests | None = None,
     ) -> None:
+        # Asked of the service by a signal or another thread (request_stop, request_reload). `bogiemon
+        # run` makes them and installs their handlers before the config is read (a signal during the
+        # start is the service's too); otherwise the service has its own.
+        self.requests = requests if requests is not None else Requests()
+        self._own_requests = requests is None
         self.config_path = config_path
         self.config = load_config(config_path)  # a bad config at start is a user error: exit 2
         self.load = load
@@ -91,7 +89,6 @@ class Service:
         self.notifier = notifier or Notifier()
         self.sinks = sinks if sinks is not None else [LogSink()]
         self.observers = observers or []
-        self.flags = _Flags(threading.Event(), threading.Event())
         self.recorder: Recorder | None = None  # [recorder] enabled: it taps the monitor's blocks and windows
         self._log = get_logger(component="service")
 
@@ -108,17 +105,30 @@ class Service:
             )
 
     def install_signal_handlers(self) -> None:
-        def on_stop(signum: int, _frame: FrameType | None) -> None:
-            self.flags.stop.set()
+        """SIGTERM and SIGINT stop the service, SIGHUP reloads it (the main thread only); they are
+        ignored from the moment it stops (daemon/signals.py says why)."""
+        self.requests.install()
 
-        def on_reload(signum: int, _frame: FrameType | None) -> None:
-            self.flags.reload.set()
+    def request_stop(self) -> None:
+        """Stop, as SIGTERM does (from any thread)."""
+        self.requests.request_stop()
 
-        signal.signal(signal.SIGTERM, on_stop)
-        signal.signal(signal.SIGINT, on_stop)
-        signal.signal(signal.SIGHUP, on_reload)
+    def request_reload(self) -> None:
+        """Reload the config, as SIGHUP does (from any thread)."""
+        self.requests.request_reload()
 
     def run(self) -> int:
+        try:
+            return self._run()
+        finally:
+            self.requests.quiet()  # the handlers, if installed, ignore the signals from now on ...
+            if self._own_requests:
+                self.requests.close()  # ... so that none writes to the pipe's closed, maybe reused, descriptor
+
+    def _run(self) -> int:
+        if self.requests.stop:  # asked to stop while it started (the config read): nothing opened yet
+            self._log.info("stopped before it started")
+            return EXIT_OK
         recorder_settings = self.config.recorder_settings()
         if recorder_settings is not None:
             # Recordings on a disk filled to its last pages (by an earlier version, say) would not even
@@ -154,9 +164,11 @@ class Service:
         store_failures = 0  # the monitor's count when STATUS last told it: a new failure is told at once
         tick_s = min(1.0, (self.notifier.watchdog_interval_s or 2.0) / 2)
         try:
-            while not self.flags.stop.wait(tick_s):
-                if self.flags.reload.is_set():
-                    self.flags.reload.clear()
+            while True:
+                self.requests.wait(tick_s)
+                if self.requests.stop:
+                    break
+                if self.requests.take_reload():
                     pipeline = self._reload(pipeline, monitor)
                 if not ready and pipeline.first_block.is_set():
                     ready = True
@@ -173,6 +185,7 @@ class Service:
                 if pipeline.finished.is_set():  # a finite source ended, or a thread failed
                     break
         finally:
+            self.requests.quiet()  # stopping: a signal now is neither a reload nor a second stop
             self.notifier.stopping()
             pipeline.stop()
             pipeline.source.close()
