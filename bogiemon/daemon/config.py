@@ -8,6 +8,7 @@ sections are in daemon/config_sections.py; here they are put together, checked a
 
 from __future__ import annotations
 
+import codecs
 import difflib
 import hashlib
 import json
@@ -381,10 +382,14 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 
 def _read_text(path: Path) -> str:
-    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8."""
+    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8;
+    a UTF-8 byte-order mark (an editor's) is read past, one of UTF-16 or UTF-32 named."""
     raw = read_untrusted(path, CONFIG_FILE, ConfigError)
+    for mark, encoding in ((codecs.BOM_UTF32_LE, "UTF-32"), (codecs.BOM_UTF32_BE, "UTF-32"), (codecs.BOM_UTF16_LE, "UTF-16"), (codecs.BOM_UTF16_BE, "UTF-16")):
+        if raw.startswith(mark):
+            raise ConfigError(f"{path}: a {encoding} text file (it begins with a {encoding} byte-order mark); save it as UTF-8, a config is TOML")
     try:
-        return raw.decode("utf-8")
+        return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}); a config is TOML") from None
 

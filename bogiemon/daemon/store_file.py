@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from bogiemon.drivers.atomic import fsync_path
+from bogiemon.drivers.quoting import quoted
 
 DB_NAME = "events.sqlite3"
 SCHEMA_VERSION = 2
@@ -192,7 +193,7 @@ class StoreFile:
         return db
 
     def damaged(self, detail: str) -> str:
-        detail = " ".join(detail.split())  # quick_check reports one problem per line: the error is one line
+        detail = quoted(" ".join(detail.split()), 300)  # quick_check reports one problem per line, which may quote the file
         return (
             f"{self.path}: the event store is damaged ({detail}); bogiemon leaves it untouched: move it aside "
             f"(mv {self.path} {self.path}.damaged, with its -wal and -shm files), then start again for a new store "

@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import MAX_TIME_S, Block
 from bogiemon.drivers.files import FileKind, UntrustedFile, open_untrusted, size_text
+from bogiemon.drivers.quoting import quoted
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -464,7 +465,7 @@ class _CsvReader(RecordingReader):
                 self.error(f"not a text file: expected a CSV recording with header '{HEADER}'")
             if text.strip() != HEADER:
                 _drain(f)
-                shown = text.strip()[:60] or "an empty line"
+                shown = quoted(text.strip()) or "an empty line"
                 self.error(f"line 1: expected the header '{HEADER}', found '{shown}'")
             survey = _survey(f, first_chunk[self._header_bytes :])
         self.n_samples = survey.rows
@@ -536,8 +537,7 @@ class _CsvReader(RecordingReader):
             if found is None:
                 break
             start, number = found.end(), number + 1
-        cut = parse_error if len(parse_error) <= 200 else parse_error[:197] + "..."
-        return len(block), f"cannot parse the rows: {cut}"
+        return len(block), f"cannot parse the rows: {quoted(parse_error, 200)}"
 
 
 def _line_problem(line: bytes) -> str | None:
@@ -552,7 +552,7 @@ def _line_problem(line: bytes) -> str | None:
         return f"expected 4 comma-separated values ({HEADER}), found {len(cells)}"
     for name, cell in zip(COLUMNS, cells, strict=True):
         if not _NUMBER.fullmatch(cell):
-            return f"{name} is not a number: '{cell.decode().strip()[:40]}'"
+            return f"{name} is not a number: '{quoted(cell.strip(), 40)}'"
     return None
 
 
@@ -710,7 +710,7 @@ class _ParquetReader(RecordingReader):
             pf = self._open_file(f)
             schema = pf.schema_arrow
             if schema.names != list(COLUMNS) or any(t != pa.float64() for t in schema.types):
-                found = ", ".join(f"{n} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
+                found = ", ".join(f"{quoted(n, 40)} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
                 self.error(f"expected the float64 columns {', '.join(COLUMNS)}, found {found or 'none'}")
             meta = pf.metadata
             for i in range(meta.num_row_groups):
@@ -764,8 +764,7 @@ class _ParquetReader(RecordingReader):
 
 
 def _short(exc: BaseException, limit: int = 200) -> str:
-    text = str(exc) or type(exc).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    return quoted(str(exc) or type(exc).__name__, limit)  # a library's message may quote the file
 
 
 # ------------------------------------------------------------------------------------------------
