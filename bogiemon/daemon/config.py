@@ -77,6 +77,7 @@ __all__ = [
     "WagonConfig",
     "default_config_text",
     "load_config",
+    "load_config_and_files",
     "parse_config",
     "validate_config",
 ]
@@ -317,8 +318,16 @@ def load_config(
     config: the caller chose them, so they are not held to the folder). With log_warnings,
     credential files others can read are logged as warnings (check-config prints them instead).
     """
+    return load_config_and_files(path, log_warnings=log_warnings, extra_includes=extra_includes)[0]
+
+
+def load_config_and_files(
+    path: str | Path | None = None, *, log_warnings: bool = True, extra_includes: Sequence[str | Path] = ()
+) -> tuple[BogiemonConfig, tuple[Path, ...]]:
+    """load_config, and the files it read: the config file, then its includes in order (none for
+    the shipped default)."""
     if path is None:
-        return parse_config(default_config_text(), source="default config")
+        return parse_config(default_config_text(), source="default config"), ()
     path = Path(path)
     data = _read_toml(path)
     names = data.get("include", [])
@@ -347,7 +356,7 @@ def load_config(
         log = get_logger(component="config")
         for warning in warnings:
             log.warning(warning, config=str(path))
-    return config
+    return config, (path, *fragment_paths)
 
 
 def parse_config(text: str, source: str) -> BogiemonConfig:

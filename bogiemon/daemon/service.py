@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bogiemon.daemon.blas import limit_blas_threads
-from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
+from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config_and_files
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
 from bogiemon.judgement.models import excitation_of
@@ -29,6 +29,7 @@ from bogiemon.daemon.recorder import Recorder, keep_the_reserve_free
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.signals import Requests
 from bogiemon.daemon.sinks import EventSink, LogSink
+from bogiemon.daemon.startup import Snapshot, check_start
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.recording import RecordingError
@@ -83,7 +84,8 @@ class Service:
         self.requests = requests if requests is not None else Requests()
         self._own_requests = requests is None
         self.config_path = config_path
-        self.config = load_config(config_path)  # a bad config at start is a user error: exit 2
+        self.config, files = load_config_and_files(config_path)  # a bad config at start is a user error: exit 2
+        self.snapshot = Snapshot.of(self.config, files)  # the config and the files it names, as the service runs them
         self.load = load
         self.source_factory = source_factory
         self.notifier = notifier or Notifier()
@@ -134,6 +136,10 @@ class Service:
             # Recordings on a disk filled to its last pages (by an earlier version, say) would not even
             # let the store open, and the recorder starts after it: their room first (docs/recorder.md).
             keep_the_reserve_free(recorder_settings)
+        # What check-config checks, run here first: a file the config names that cannot be used
+        # (a DBC, a recording, a damaged store) stops the start before anything is opened for writing.
+        for problem in check_start(self.config):
+            self._log.warning(problem)
         try:
             store = EventStore(self.config.state.directory)
         except StoreError as exc:
@@ -272,25 +278,32 @@ class Service:
             self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in reason.splitlines()))
 
         try:
-            new = load_config(self.config_path)
-            # Everything the monitor takes, built before anything changes (the fused model's fit included).
-            settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
+            new, files = load_config_and_files(self.config_path)
+            snapshot = Snapshot.of(new, files)
+            changed = self.snapshot.changed(snapshot)
+            if changed:
+                # The files it names are opened and parsed as at a start: a DBC, a model file or a
+                # recording that cannot be used rejects the whole reload.
+                for problem in check_start(new):
+                    self._log.warning("reload: " + problem)
+                # Everything the monitor takes, built before anything changes (the fused model's fit included).
+                settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
         except Exception as exc:
             reject(exc, "load")
             return pipeline
-        if new.digest() == old.digest():
-            # The same config (its includes too): nothing to apply, nothing restarts. A reload storm
-            # (a tool reloading on every change of a folder, say) must never make the monitor blind.
-            self._log.info("reloaded", config_hash=new.digest(), unchanged=True, windows_restart=False)
+        if not changed:
+            # The same config, includes and named files: nothing to apply, nothing restarts. A reload
+            # storm (a tool reloading on every change of a folder, say) must never make the monitor blind.
+            self._log.info("reloaded", config_hash=new.digest(), files_hash=snapshot.digest, unchanged=True, windows_restart=False)
             self.notifier.ready(status="reloaded: the config is unchanged")
             return pipeline
-        restart_source = new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline
+        restart_source = bool(changed & {"source", "pipeline"})  # its settings, or a file it reads (a DBC, the recording)
         source_stopped = False
         restarted: list[bool] = []
         try:
             self.config = new
             pipeline.with_monitor(lambda m: restarted.append(m.reconfigure(settings)))
-            self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
+            self.delivery.apply(new, changed)  # restarts the publisher or the CAN alarms only if their sections changed
             if restart_source:
                 source_stopped = True
                 pipeline.stop()
@@ -301,7 +314,7 @@ class Service:
             try:  # what ran before, as it ran: the monitor's settings (its alarm state carries over), delivery, source
                 self.config = old
                 pipeline.with_monitor(lambda m: m.reconfigure(old_settings))
-                self.delivery.apply(old)
+                self.delivery.apply(old, changed)
                 if source_stopped:
                     pipeline = self._start_pipeline(monitor)
             except Exception as restore_exc:
@@ -314,12 +327,13 @@ class Service:
             self._apply_recorder(pipeline, monitor, new)
         except Exception as exc:  # noqa: BLE001 - recordings are a nicety: the new config runs without the change
             self._log.error("recorder not reconfigured, the running one goes on", error=f"{type(exc).__name__}: {exc}")
-        if new.state != old.state:
+        self.snapshot = snapshot
+        if "state" in changed:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
         # Said when the windows restart (the processing, the sensors or the source changed): the next
         # judged window is then a whole window of data away.
         windows_restart = bool(restarted and restarted[0]) or restart_source
-        self._log.info("reloaded", config_hash=new.digest(), windows_restart=windows_restart)
+        self._log.info("reloaded", config_hash=new.digest(), files_hash=snapshot.digest, changed=sorted(changed), windows_restart=windows_restart)
         self._warn_if_not_commissioned(new)
         restart_text = f": the windows restart, the next is judged {new.processing.window_s:g} s of data from now"
         self.notifier.ready(status="reloaded" + (restart_text if windows_restart else ""))
