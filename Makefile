@@ -103,8 +103,10 @@ soak: $(STAMP)
 	$(PY) bench/soak.py
 
 # kill -9 at random moments of `bogiemon replay` and `bogiemon run` (bench/kill9.py): 120 trials,
-# seeded; per command the store-open failures, lost and duplicated events and state mismatches
-# (a few minutes; a handful of the same trials run in `make test`, tests/daemon/test_kill9.py).
+# seeded; per command the store-open failures, lost and duplicated events and state mismatches;
+# then 20 of `run` with its recorder on a small tmpfs (root only), the disk filled to its last page
+# with what it left, and a start that must give it back and commit (a few minutes; a handful of the
+# same trials run in `make test`, tests/daemon/test_kill9.py and test_kill9_disk.py).
 .PHONY: kill9
 kill9: $(STAMP)
 	$(PY) bench/kill9.py

@@ -25,11 +25,12 @@ from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.judgement.vocabulary import LoadState, Method
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
-from bogiemon.daemon.recorder import Recorder, keep_the_reserve_free
+from bogiemon.daemon.recorder import Recorder
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.signals import Requests
 from bogiemon.daemon.sinks import EventSink, LogSink
 from bogiemon.daemon.startup import Snapshot, check_start
+from bogiemon.daemon.statedir import give_back
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.recording import RecordingError
@@ -131,11 +132,10 @@ class Service:
         if self.requests.stop:  # asked to stop while it started (the config read): nothing opened yet
             self._log.info("stopped before it started")
             return EXIT_OK
-        recorder_settings = self.config.recorder_settings()
-        if recorder_settings is not None:
-            # Recordings on a disk filled to its last pages (by an earlier version, say) would not even
-            # let the store open, and the recorder starts after it: their room first (docs/recorder.md).
-            keep_the_reserve_free(recorder_settings)
+        # What bogiemon left on a disk filled to its last pages (a recording killed in the middle of its
+        # write, recordings of an earlier version) would not even let the store open, and the
+        # recorder starts after it: their room first (daemon/statedir.py, docs/recorder.md).
+        give_back(self.config)
         # What check-config checks, run here first: a file the config names that cannot be used
         # (a DBC, a recording, a damaged store) stops the start before anything is opened for writing.
         for problem in check_start(self.config):

@@ -95,13 +95,14 @@ class Daemon:
                     self.proc.kill()
                     self.proc.communicate()
                     raise AssertionError(f"the daemon did not end: {progress.why_not()}") from None
-        self.sock.setblocking(False)
-        while True:  # what the daemon sent after the last wait_for
-            try:
-                self.messages.append(self.sock.recv(4096).decode())
-            except BlockingIOError:
-                break
-        self.sock.close()
+        if self.sock.fileno() != -1:  # a caller that did not listen closed it
+            self.sock.setblocking(False)
+            while True:  # what the daemon sent after the last wait_for
+                try:
+                    self.messages.append(self.sock.recv(4096).decode())
+                except BlockingIOError:
+                    break
+            self.sock.close()
         return self.proc.returncode, out, err
 
 
