@@ -18,13 +18,25 @@ _TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
 
 
 def cpu_time_s(pid: int) -> float | None:
-    """A process's CPU time so far (user and system, every thread); None once it is gone."""
+    """A process's CPU time so far (user and system, every thread) and its living children's, theirs
+    included (a harness waits while its workers work); None once it is gone."""
     try:
         text = Path(f"/proc/{pid}/stat").read_bytes().decode("ascii", "replace")
     except OSError:
         return None
     fields = text[text.rindex(")") + 2 :].split()  # the name, in parentheses, may hold spaces
-    return (int(fields[11]) + int(fields[12])) * _TICK_S  # utime, stime: fields 14 and 15 of proc(5)
+    own_s = (int(fields[11]) + int(fields[12]) + int(fields[13]) + int(fields[14])) * _TICK_S  # utime, stime, and the waited-for children's
+    return own_s + sum(cpu_time_s(child) or 0.0 for child in _children(pid))
+
+
+def _children(pid: int) -> list[int]:
+    children = []
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            children += [int(c) for c in Path(f"/proc/{pid}/task/{task}/children").read_text().split()]
+    except OSError:
+        pass  # gone meanwhile
+    return children
 
 
 class Progress:
