@@ -134,11 +134,11 @@ bench-mqtt: $(STAMP) system-deps
 	$(PY) bench/bench_mqtt.py
 
 # The fuzz suite (bench/fuzz.py; not part of `make test`, whose tests/test_fuzz_quick.py runs its
-# --quick form): every decoder and parser fed seeded generated and mutated inputs (150 to 100 000 per
-# target: compressed and Parquet recordings, the recorder on a full tmpfs, reload storms too), each
-# under a time limit; prints per target the inputs, clear errors, crashes, hangs and silently wrong
+# --quick form): every decoder and parser fed seeded generated and mutated inputs (120 to 100 000 per
+# target: compressed and Parquet recordings, the recorder on a full tmpfs, reload storms, floods of
+# signals at a running daemon too), each under a limit of CPU time; prints per target the inputs, clear errors, crashes, hangs and silently wrong
 # results, saves each distinct finding under bench/fuzz_crashes/ and exits 1 on a crash or a hang
-# (about 30 minutes on two cores; the recorder's target mounts its tmpfs as root, else is not run).
+# (about 35 minutes on two cores; the recorder's target mounts its tmpfs as root, else is not run).
 fuzz: $(STAMP)
 	$(PY) bench/fuzz.py
 
