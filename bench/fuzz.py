@@ -49,7 +49,7 @@ BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH))
 
 import fuzz_core  # noqa: E402  (stdlib only: the parent stays light, the targets load in the workers)
-from fuzz_progress import SLOT_SIZE, ProgressSlot, cpu_time_s  # noqa: E402
+from fuzz_progress import SLOT_SIZE, WALL_FACTOR, ProgressSlot, cpu_time_s, install_alarms, stuck  # noqa: E402
 
 REPO = BENCH.parent
 sys.path.insert(1, str(REPO))  # the daemon's targets build their signals with tests/daemon/synthetic.py
@@ -59,12 +59,6 @@ DEFAULT_SEED = 17
 # that asks for more (an include of /dev/zero) gets MemoryError instead of the machine's memory.
 MEMORY_HEADROOM_BYTES = 2 << 30
 REPORT_EVERY_S = 0.5  # a worker reports its counts this often, so a killed worker loses little
-# An input's time limit is CPU time (ITIMER_PROF: the worker's threads together, as the watchdog
-# reads it): a machine busy with other work slows an input's wall time, never its CPU time, and a
-# wall-clock limit made "hangs" of ordinary inputs under load (a 2 s serial-parser input of the
-# quick run, with `make test`'s workers beside it). An input blocked without using the CPU (a
-# deadlock) is caught by the wall clock instead, at this many times the limit.
-WALL_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -162,10 +156,6 @@ class Context(fuzz_core.Context):
         self.figures: dict[str, float] = {}
 
 
-def _on_alarm(signum: int, _frame: Any) -> None:
-    raise fuzz_core.InputTimeout("cpu" if signum == signal.SIGPROF else "wall")
-
-
 def _site(tb: TracebackType | None) -> str:
     """The innermost frame in the project's code (not bench/ or tests/), else the innermost of all."""
     frames = traceback.extract_tb(tb)
@@ -193,12 +183,6 @@ class Outcome:
     site: str = ""
     message: str = ""
     traceback: str = ""
-
-
-def install_alarms() -> None:
-    """The handlers of run_input's two clocks (a worker's main thread, once)."""
-    signal.signal(signal.SIGALRM, _on_alarm)
-    signal.signal(signal.SIGPROF, _on_alarm)
 
 
 def run_input(target: fuzz_core.Target, data: fuzz_core.Input, ctx: fuzz_core.Context, clear: tuple[type[BaseException], ...], limit_s: float) -> Outcome:
@@ -440,17 +424,6 @@ def run_target(spec: Spec, n_inputs: int, seed: int, workers: list[Worker], mp: 
             if why is not None:
                 workers[i] = _replace(w, mp, seed, spec, tally, pending, "hang", why)
     return TargetResult(spec, n_inputs, tally, time.monotonic() - began, resolve(CLEAR_ERRORS.get(spec.name, ()))[1], unavailable)
-
-
-def stuck(running_s: float, cpu_s: float | None, hard_limit_s: float) -> str | None:
-    """Why a worker whose input has run running_s of wall time and cpu_s of CPU time (None: not
-    known) is stuck past hard_limit_s, or None: the CPU it took decides, so that a worker slowed by
-    a busy machine is never killed; the wall clock only for one that waits, at WALL_FACTOR times."""
-    if cpu_s is not None and cpu_s > hard_limit_s:
-        return f"killed after {cpu_s:.0f} s of CPU in one input"
-    if running_s > WALL_FACTOR * hard_limit_s or (cpu_s is None and running_s > hard_limit_s):
-        return f"killed after {running_s:.0f} s in one input, {'?' if cpu_s is None else f'{cpu_s:.0f} s'} of CPU"
-    return None
 
 
 def _replace(w: Worker, mp: Any, seed: int, spec: Spec, tally: Tally, pending: deque[tuple[int, int]], kind: str, why: str) -> Worker:

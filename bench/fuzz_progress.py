@@ -1,4 +1,5 @@
-"""The slot where a fuzz worker says which input it runs and since when, read by the parent's watchdog.
+"""The fuzz harness's hang clock: the slot where a worker says which input it runs and since when,
+read by the parent's watchdog, and the limits both sides apply.
 
 Since when on two clocks: the wall clock (time.monotonic()) and the worker's own CPU time
 (time.process_time(), every thread of it). The watchdog judges a hang by the CPU time an input took
@@ -17,16 +18,26 @@ a half-written pair (reading the start twice, once to test it and once to use it
 from __future__ import annotations
 
 import os
+import signal
 import time
 from collections.abc import MutableSequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+import fuzz_core
 
 SEQUENCE, INDEX, STARTED, STARTED_CPU = 0, 1, 2, 3
 # Doubles: the sequence, the input's index, its start (time.monotonic(); 0: no input running) and
 # the worker's CPU time then (time.process_time()).
 SLOT_SIZE = 4
 READ_TRIES = 100  # a reader retries a torn read this often, then reports nothing for this look
+# An input's time limit is CPU time (ITIMER_PROF: the worker's threads together, as the watchdog
+# reads it): a machine busy with other work slows an input's wall time, never its CPU time, and a
+# wall-clock limit made "hangs" of ordinary inputs under load (a 2 s serial-parser input of the
+# quick run, with `make test`'s workers beside it). An input blocked without using the CPU (a
+# deadlock) is caught by the wall clock instead, at this many times the limit.
+WALL_FACTOR = 10.0
 
 
 @dataclass(frozen=True)
@@ -109,3 +120,25 @@ def cpu_time_s(pid: int) -> float | None:
         return (int(fields[11]) + int(fields[12])) * _TICK_S  # utime, stime: fields 14 and 15 of proc(5)
     except (IndexError, ValueError):
         return None
+
+
+def _on_alarm(signum: int, _frame: Any) -> None:
+    raise fuzz_core.InputTimeout("cpu" if signum == signal.SIGPROF else "wall")
+
+
+def install_alarms() -> None:
+    """The handlers of the two soft limits an input runs under (bench/fuzz.py run_input: ITIMER_PROF
+    for its CPU time, ITIMER_REAL for WALL_FACTOR times it); a worker's main thread, once."""
+    signal.signal(signal.SIGALRM, _on_alarm)
+    signal.signal(signal.SIGPROF, _on_alarm)
+
+
+def stuck(running_s: float, cpu_s: float | None, hard_limit_s: float) -> str | None:
+    """Why a worker whose input has run running_s of wall time and cpu_s of CPU time (None: not
+    known) is stuck past hard_limit_s, or None: the CPU it took decides, so that a worker slowed by
+    a busy machine is never killed; the wall clock only for one that waits, at WALL_FACTOR times."""
+    if cpu_s is not None and cpu_s > hard_limit_s:
+        return f"killed after {cpu_s:.0f} s of CPU in one input"
+    if running_s > WALL_FACTOR * hard_limit_s or (cpu_s is None and running_s > hard_limit_s):
+        return f"killed after {running_s:.0f} s in one input, {'?' if cpu_s is None else f'{cpu_s:.0f} s'} of CPU"
+    return None

@@ -15,9 +15,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 import fuzz_core  # noqa: E402
-from fuzz import WALL_FACTOR, install_alarms, run_input, stuck  # noqa: E402
+from fuzz import run_input  # noqa: E402
 from fuzz_progress import _TICK_S as TICK_S  # noqa: E402
-from fuzz_progress import SLOT_SIZE, STARTED, STARTED_CPU, ProgressSlot, Running, cpu_time_s  # noqa: E402
+from fuzz_progress import SLOT_SIZE, STARTED, STARTED_CPU, WALL_FACTOR, ProgressSlot, Running, cpu_time_s, install_alarms, stuck  # noqa: E402
 
 
 class Interleaved(list[float]):
