@@ -103,8 +103,10 @@ soak: $(STAMP)
 	$(PY) bench/soak.py
 
 # kill -9 at random moments of `bogiemon replay` and `bogiemon run` (bench/kill9.py): 120 trials,
-# seeded; per command the store-open failures, lost and duplicated events and state mismatches
-# (a few minutes; a handful of the same trials run in `make test`, tests/daemon/test_kill9.py).
+# seeded; per command the store-open failures, lost and duplicated events and state mismatches;
+# then 20 of `run` with its recorder on a small tmpfs (root only), the disk filled to its last page
+# with what it left, and a start that must give it back and commit (a few minutes; a handful of the
+# same trials run in `make test`, tests/daemon/test_kill9.py and test_kill9_disk.py).
 .PHONY: kill9
 kill9: $(STAMP)
 	$(PY) bench/kill9.py
@@ -132,11 +134,11 @@ bench-mqtt: $(STAMP) system-deps
 	$(PY) bench/bench_mqtt.py
 
 # The fuzz suite (bench/fuzz.py; not part of `make test`, whose tests/test_fuzz_quick.py runs its
-# --quick form): every decoder and parser fed seeded generated and mutated inputs (150 to 100 000 per
-# target: compressed and Parquet recordings, the recorder on a full tmpfs, reload storms too), each
-# under a time limit; prints per target the inputs, clear errors, crashes, hangs and silently wrong
+# --quick form): every decoder and parser fed seeded generated and mutated inputs (120 to 100 000 per
+# target: compressed and Parquet recordings, the recorder on a full tmpfs, reload storms, floods of
+# signals at a running daemon too), each under a limit of CPU time; prints per target the inputs, clear errors, crashes, hangs and silently wrong
 # results, saves each distinct finding under bench/fuzz_crashes/ and exits 1 on a crash or a hang
-# (about 30 minutes on two cores; the recorder's target mounts its tmpfs as root, else is not run).
+# (about 35 minutes on two cores; the recorder's target mounts its tmpfs as root, else is not run).
 fuzz: $(STAMP)
 	$(PY) bench/fuzz.py
 

@@ -206,7 +206,7 @@ def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = Non
         )  # fmt: skip
         def stop() -> None:
             steady.close()
-            service.flags.stop.set()
+            service.request_stop()
 
         timer = threading.Timer(START_UP_S + seconds, stop)
         timer.name = "bench-stop-timer"

@@ -71,7 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         if not is_user_error(exc):
             raise
-        print(f"bogiemon: error: {exc}", file=sys.stderr)
+        from bogiemon.drivers.quoting import printable  # a message may quote a file: nothing in it for the terminal to act on
+
+        print(f"bogiemon: error: {printable(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
 
 

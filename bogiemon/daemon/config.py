@@ -9,6 +9,7 @@ config_delivery.py, each field with its description; here they are put together,
 
 from __future__ import annotations
 
+import codecs
 import difflib
 import hashlib
 import json
@@ -77,6 +78,7 @@ __all__ = [
     "WagonConfig",
     "default_config_text",
     "load_config",
+    "load_config_and_files",
     "parse_config",
     "validate_config",
 ]
@@ -325,8 +327,16 @@ def load_config(
     config: the caller chose them, so they are not held to the folder). With log_warnings,
     credential files others can read are logged as warnings (check-config prints them instead).
     """
+    return load_config_and_files(path, log_warnings=log_warnings, extra_includes=extra_includes)[0]
+
+
+def load_config_and_files(
+    path: str | Path | None = None, *, log_warnings: bool = True, extra_includes: Sequence[str | Path] = ()
+) -> tuple[BogiemonConfig, tuple[Path, ...]]:
+    """load_config, and the files it read: the config file, then its includes in order (none for
+    the shipped default)."""
     if path is None:
-        return parse_config(default_config_text(), source="default config")
+        return parse_config(default_config_text(), source="default config"), ()
     path = Path(path)
     data = _read_toml(path)
     names = data.get("include", [])
@@ -355,7 +365,7 @@ def load_config(
         log = get_logger(component="config")
         for warning in warnings:
             log.warning(warning, config=str(path))
-    return config
+    return config, (path, *fragment_paths)
 
 
 def parse_config(text: str, source: str) -> BogiemonConfig:
@@ -390,10 +400,14 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 
 def _read_text(path: Path) -> str:
-    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8."""
+    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8;
+    a UTF-8 byte-order mark (an editor's) is read past, one of UTF-16 or UTF-32 named."""
     raw = read_untrusted(path, CONFIG_FILE, ConfigError)
+    for mark, encoding in ((codecs.BOM_UTF32_LE, "UTF-32"), (codecs.BOM_UTF32_BE, "UTF-32"), (codecs.BOM_UTF16_LE, "UTF-16"), (codecs.BOM_UTF16_BE, "UTF-16")):
+        if raw.startswith(mark):
+            raise ConfigError(f"{path}: a {encoding} text file (it begins with a {encoding} byte-order mark); save it as UTF-8, a config is TOML")
     try:
-        return raw.decode("utf-8")
+        return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}); a config is TOML") from None
 

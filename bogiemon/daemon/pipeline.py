@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.monitor import Monitor
@@ -20,6 +21,35 @@ from bogiemon.drivers.base import EndOfStream, Source
 from bogiemon.drivers.recording import RecordingError
 
 READ_TIMEOUT_S = 0.5
+# A live source this far behind real time (Source.behind_s: samples received and not yet handed
+# on, beyond the block being filled) is said in the journal at warning, and once it has caught up
+# at info with how far behind it was at most and for how long: after a burst of errors or a stall
+# the keeper sees that data came late, and how late.
+BEHIND_S = 1.0
+
+
+class BehindWatch:
+    """Tells the journal when a live source falls behind real time, and when it has caught up."""
+
+    def __init__(self, log: Any, clock: Callable[[], float] = time.monotonic) -> None:
+        self._log = log
+        self._clock = clock
+        self._since_s: float | None = None  # behind since then (the clock's time); None: in time
+        self._most_s = 0.0
+
+    def observe(self, behind_s: float) -> None:
+        if self._since_s is None:
+            if behind_s >= BEHIND_S:
+                self._since_s, self._most_s = self._clock(), behind_s
+                self._log.warning("the source fell behind real time", behind_s=round(behind_s, 3))
+            return
+        self._most_s = max(self._most_s, behind_s)
+        if behind_s == 0.0:
+            self._log.info(
+                "the source caught up with real time", behind_at_most_s=round(self._most_s, 3),
+                behind_for_s=round(self._clock() - self._since_s, 3),
+            )  # fmt: skip
+            self._since_s = None
 
 
 class Pipeline:
@@ -59,6 +89,7 @@ class Pipeline:
             return fn(self.monitor)
 
     def _read_loop(self) -> None:
+        behind = None if self.source.finite else BehindWatch(self._log)
         try:
             while not self._stop.is_set():
                 try:
@@ -71,6 +102,8 @@ class Pipeline:
                     # whoever runs the pipeline names the file (replay: one line, exit 2).
                     self.error = exc
                     break
+                if behind is not None:
+                    behind.observe(self.source.behind_s())
                 if block is None:
                     continue
                 stored = self.ring.put(block, timeout_s=READ_TIMEOUT_S)

@@ -123,6 +123,11 @@ class Source(ABC):
         for what the bus or the cable does: it counts it, reconnects, and reports a gap.
         """
 
+    def behind_s(self) -> float:
+        """How far a live source is behind real time: the seconds of samples it has received and
+        not handed on, beyond the block it is filling (0 for a recording: it has no real time)."""
+        return 0.0
+
     def close(self) -> None:  # noqa: B027 - optional for sources that hold nothing
         """Release the device or file."""
 

@@ -15,6 +15,7 @@ from typing import BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.files import UntrustedFile, open_untrusted, size_text
 from bogiemon.drivers.recording_check import RecordingReader
 from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, RecordingError, arrow_columns, recording_rows
@@ -57,7 +58,7 @@ class CsvRecordingReader(RecordingReader):
                 self.error(f"not a text file: expected a CSV recording with header '{HEADER}'")
             if text.strip() != HEADER:
                 _drain(f)
-                shown = text.strip()[:60] or "an empty line"
+                shown = quoted(text.strip()) or "an empty line"
                 self.error(f"line 1: expected the header '{HEADER}', found '{shown}'")
             survey = _survey(f, first_chunk[self._header_bytes :])
         self.n_samples = survey.rows
@@ -129,8 +130,7 @@ class CsvRecordingReader(RecordingReader):
             if found is None:
                 break
             start, number = found.end(), number + 1
-        cut = parse_error if len(parse_error) <= 200 else parse_error[:197] + "..."
-        return len(block), f"cannot parse the rows: {cut}"
+        return len(block), f"cannot parse the rows: {quoted(parse_error, 200)}"
 
 
 def _line_problem(line: bytes) -> str | None:
@@ -145,7 +145,7 @@ def _line_problem(line: bytes) -> str | None:
         return f"expected 4 comma-separated values ({HEADER}), found {len(cells)}"
     for name, cell in zip(COLUMNS, cells, strict=True):
         if not _NUMBER.fullmatch(cell):
-            return f"{name} is not a number: '{cell.decode().strip()[:40]}'"
+            return f"{name} is not a number: '{quoted(cell.strip(), 40)}'"
     return None
 
 

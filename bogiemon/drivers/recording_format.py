@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block
 from bogiemon.drivers.files import FileKind
+from bogiemon.drivers.quoting import quoted
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -126,9 +127,9 @@ def _numpy(column: pa.Array) -> NDArray[np.float64]:
 
 
 def short_error(exc: BaseException, limit: int = 200) -> str:
-    """An exception's message for a one-line error, cut to `limit` characters."""
-    text = str(exc) or type(exc).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    """An exception's message for a one-line error, cut to `limit` characters and quoted (a
+    library's message may quote the file)."""
+    return quoted(str(exc) or type(exc).__name__, limit)
 
 
 def recording_rows(time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.files import UntrustedFile, open_untrusted
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
 from bogiemon.drivers.recording_format import COLUMNS, RECORDING_FILE, RecordingError, arrow_columns, recording_rows, short_error
 
@@ -59,7 +60,7 @@ class ParquetRecordingReader(RecordingReader):
             pf = self._open_file(f)
             schema = pf.schema_arrow
             if schema.names != list(COLUMNS) or any(t != pa.float64() for t in schema.types):
-                found = ", ".join(f"{n} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
+                found = ", ".join(f"{quoted(n, 40)} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
                 self.error(f"expected the float64 columns {', '.join(COLUMNS)}, found {found or 'none'}")
             meta = pf.metadata
             for i in range(meta.num_row_groups):

@@ -32,6 +32,7 @@ from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source, pl
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.files import FileKind, TextLines, open_untrusted
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording import RecordingError, is_sample_recording_name, open_recording_reader
 from bogiemon.drivers.segments import SampleQueue
 from bogiemon.drivers.counters import counters
@@ -351,9 +352,9 @@ class _LogEntries:
                     f"{path}: not a recording bogiemon replays: use a recording (.csv, .csv.gz, .parquet) or a CAN log "
                     "(.log from candump -L, .asc, .blf)"
                 ) from None
-            raise RecordingError(f"{path}: not a readable CAN log: {exc}") from None
+            raise RecordingError(f"{path}: not a readable CAN log: {quoted(str(exc), 200)}") from None
         except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad header
-            raise RecordingError(f"{path}: not a readable CAN log ({type(exc).__name__}: {exc})") from None
+            raise RecordingError(f"{path}: not a readable CAN log ({type(exc).__name__}: {quoted(str(exc), 200)})") from None
 
     def __iter__(self) -> Iterator[can.Message]:
         entries = 0
@@ -364,7 +365,7 @@ class _LogEntries:
                     yield message
                 return
             except Exception as exc:  # noqa: BLE001 - each python-can reader raises its own kind for a bad line
-                detail = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                detail = f"{type(exc).__name__}: {quoted(str(exc), 200)}" if str(exc) else type(exc).__name__
                 if self._file is None:
                     self._on_unreadable(f"{self.path}: unreadable CAN log entry after {entries} frames, replay ends here: {detail}")
                     return
