@@ -87,6 +87,12 @@ bench-daemon: $(STAMP)
 bench-study: $(STAMP)
 	$(PY) bench/bench_study.py
 
+# The import of the fleet's page (`import bogiemon.fleet.report`) in fresh interpreters, beside its
+# 0.3 s target; BENCH_ARGS=--why adds its heaviest modules (python -X importtime).
+.PHONY: bench-import
+bench-import: $(STAMP)
+	$(PY) bench/bench_import.py $(BENCH_ARGS)
+
 # The back office: `fleet analyze` of a simulated fleet on 1 and 2 Dask workers, against `analyze`.
 .PHONY: bench-fleet
 bench-fleet: $(STAMP)
