@@ -56,6 +56,16 @@ test: $(STAMP) lint system-deps
 	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
 	exit $$status
 
+# The slow tier (tests/tier.py): the tests marked slow_tier at their full size (long property runs
+# whose fast example `make test` runs); `make test-all` is both.
+.PHONY: test-slow test-all
+test-slow: export PYTHONDONTWRITEBYTECODE =
+test-slow: export BOGIEMON_TEST_TIER = slow
+test-slow: $(STAMP)
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder -m slow_tier
+
+test-all: test test-slow
+
 # Benchmarks print figures (median, min and max of several runs; ratios against a baseline
 # measured in the same run); timing is never asserted in a test. `make bench` runs every part and
 # prints one table, writing bench/results/latest.json (about 50 minutes: the daemon runs at real
