@@ -24,6 +24,7 @@ smallest input that shows it under bench/fuzz_crashes/<target>/ (bench/fuzz_cras
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import json
 import multiprocessing
@@ -281,6 +282,10 @@ def _worker(conn: multiprocessing.connection.Connection, cells: Any, seed: int) 
     except BaseException:  # noqa: BLE001 - a target module that does not import: the harness cannot run
         conn.send(("fatal", traceback.format_exc(), 0))
         return
+    # What the imports built lives as long as the worker: the collector leaves it alone from now on
+    # (a full collection before each recording's input, for its peak memory, scanned it all; the
+    # recording targets' quick runs took half the CPU with it frozen, 16 -> 7.8 s for recording-gz).
+    gc.freeze()
     try:
         while True:
             message = conn.recv()
