@@ -56,6 +56,16 @@ test: $(STAMP) lint system-deps
 	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
 	exit $$status
 
+# The slow tier (tests/tier.py): the tests marked slow_tier at their full size (long property runs
+# whose fast example `make test` runs); `make test-all` is both.
+.PHONY: test-slow test-all
+test-slow: export PYTHONDONTWRITEBYTECODE =
+test-slow: export BOGIEMON_TEST_TIER = slow
+test-slow: $(STAMP)
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder -m slow_tier
+
+test-all: test test-slow
+
 # Benchmarks print figures (median, min and max of several runs; ratios against a baseline
 # measured in the same run); timing is never asserted in a test. `make bench` runs every part and
 # prints one table, writing bench/results/latest.json (about 50 minutes: the daemon runs at real
@@ -86,6 +96,12 @@ bench-daemon: $(STAMP)
 
 bench-study: $(STAMP)
 	$(PY) bench/bench_study.py
+
+# The import of the fleet's page (`import bogiemon.fleet.report`) in fresh interpreters, beside its
+# 0.3 s target; BENCH_ARGS=--why adds its heaviest modules (python -X importtime).
+.PHONY: bench-import
+bench-import: $(STAMP)
+	$(PY) bench/bench_import.py $(BENCH_ARGS)
 
 # The back office: `fleet analyze` of a simulated fleet on 1 and 2 Dask workers, against `analyze`.
 .PHONY: bench-fleet

@@ -253,20 +253,20 @@ def _drain(f: UntrustedFile) -> None:
 
 
 def write_csv_recording(
-    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False
+    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False, gzip_level: int = GZIP_LEVEL
 ) -> None:
     """Write a recording; times with microsecond resolution, accelerations with 6 decimals (1e-6 m/s^2).
 
-    A path ending in .gz is written gzip-compressed (no name and no time stamp in the gzip header:
-    the same samples give the same bytes). fsync: on the disk before this returns (a file about
-    to be renamed into place must be whole there first).
+    A path ending in .gz is written gzip-compressed at gzip_level (no name and no time stamp in the
+    gzip header: the same samples give the same bytes). fsync: on the disk before this returns (a
+    file about to be renamed into place must be whole there first).
     """
     path = Path(path)
     time_s, accel = recording_rows(time_s, accel_mps2)
     rows = np.column_stack([time_s, accel])
     with path.open("wb") as raw:
         if path.name.lower().endswith(".gz"):
-            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=GZIP_LEVEL, mtime=0) as packed:
+            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=gzip_level, mtime=0) as packed:
                 _write_rows(packed, rows)  # closing the gzip stream writes its trailer, and leaves `raw` open
         else:
             _write_rows(raw, rows)
