@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, field_val
 
 from bogiemon.judgement.events import INDICATOR_FIELDS
 from bogiemon.judgement.vocabulary import LoadSetting, LoadState, Method
-from bogiemon.drivers.recording import RecordingFormat
+from bogiemon.drivers.recording import NEEDS_PYARROW, RecordingFormat, parquet_available
 from bogiemon.detection import Corner, ProcessingSettings
 from bogiemon.detection.features import COUPLING_NAMES, LOAD_NAMES
 
@@ -480,6 +480,12 @@ class RecorderConfig(Section):
     periodic_s: float = Field(300.0, gt=0, le=3600)
     max_total_bytes: int = Field(512 * MIB, ge=MIB, le=2**50)
     format: RecordingFormat = RecordingFormat.CSV_GZ
+
+    @model_validator(mode="after")
+    def _format_installed(self) -> RecorderConfig:
+        if self.enabled and self.format is RecordingFormat.PARQUET and not parquet_available():
+            raise ValueError(f"format = \"parquet\" {NEEDS_PYARROW}")
+        return self
 
     @model_validator(mode="after")
     def _periodic_fits(self) -> RecorderConfig:

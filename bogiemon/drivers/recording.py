@@ -41,11 +41,12 @@ from __future__ import annotations
 
 import enum
 import gzip
+import importlib.util
 import math
 import os
 import re
 from abc import ABC, abstractmethod
-from collections.abc import Generator, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO, NoReturn
@@ -54,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import MAX_TIME_S, Block
+from bogiemon.drivers.csv_rows import NUMBER, RowsError, parse_rows
 from bogiemon.drivers.files import FileKind, UntrustedFile, open_untrusted, size_text
 
 if TYPE_CHECKING:
@@ -120,15 +122,24 @@ MAX_PARQUET_GROUP_ROWS = 1 << 20
 _PARQUET_BYTES_PER_VALUE = 16
 _PARQUET_FOOTER_LIMIT = 1 << 20  # thrift strings and containers of the footer: ours are a few KiB
 
-# A number as pyarrow's CSV reader takes it (spaces and tabs around it allowed): the slow path
-# that names a bad line must find the line pyarrow refused, not one Python's float() refuses.
-_NUMBER = re.compile(rb"[ \t]*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan(?:\([0-9A-Za-z_]*\))?|inf(?:inity)?)[ \t]*", re.I)
+# A number as pyarrow's CSV reader takes it: the slow path that names a bad line must find the
+# line pyarrow refused, not one Python's float() refuses (and numpy's parser keeps to it).
+_NUMBER = NUMBER
 _NOT_BREAK = re.compile(rb"[^\r\n]+")
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 
 
 class RecordingError(ValueError):
     """A recording that cannot be used; the message names the file, the line and the remedy."""
+
+
+# Parquet is pyarrow's, which a gateway may be installed without (CSV is read either way).
+NEEDS_PYARROW = "needs pyarrow, which this install leaves out: pip install 'bogiemon[recordings]', or use CSV (.csv.gz)"
+
+
+def parquet_available() -> bool:
+    """Whether pyarrow, which Parquet recordings need, is installed (and not hidden, as a test hides it)."""
+    return importlib.util.find_spec("pyarrow") is not None
 
 
 @dataclass(frozen=True)
@@ -420,6 +431,8 @@ def open_recording_reader(path: str | Path, min_samples: int = 2) -> RecordingRe
     path = Path(path)
     with open_untrusted(path, RECORDING_FILE, RecordingError) as f:
         parquet = path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and os.pread(f.fileno(), 4, 0) == PARQUET_MAGIC)
+    if parquet and not parquet_available():
+        raise RecordingError(f"{path}: a Parquet recording {NEEDS_PYARROW}")
     reader: RecordingReader = _ParquetReader(path) if parquet else _CsvReader(path)
     reader.open(min_samples)  # type: ignore[attr-defined]
     return reader
@@ -490,20 +503,7 @@ class _CsvReader(RecordingReader):
         raise AssertionError(f"row {row} not found in {self.path}")  # pragma: no cover - rows come from the file
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-
-        # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
-        # nothing of pyarrow's left running when the reading stops at a bad row.
-        read_options = pacsv.ReadOptions(column_names=list(COLUMNS), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
-        parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
-        convert_options = pacsv.ConvertOptions(
-            column_types=dict.fromkeys(COLUMNS, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
-        )
-        def parse(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-            for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
-                yield _columns(batch)
-
+        parse, refused = _csv_parser()
         number = 2  # the first line of the block
         with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
             _skip(f, self._header_bytes)
@@ -511,7 +511,7 @@ class _CsvReader(RecordingReader):
                 for block in _line_blocks(f):
                     try:
                         yield from parse(block)
-                    except pa.ArrowInvalid as exc:
+                    except refused as exc:
                         if not block.strip(b"\r\n"):
                             continue  # blank lines alone: pyarrow calls that an empty file
                         # The rows before the bad line are used; then the error names it.
@@ -538,6 +538,40 @@ class _CsvReader(RecordingReader):
             start, number = found.end(), number + 1
         cut = parse_error if len(parse_error) <= 200 else parse_error[:197] + "..."
         return len(block), f"cannot parse the rows: {cut}"
+
+
+CsvParse = Callable[[bytes], Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]]
+
+
+def _csv_parser() -> tuple[CsvParse, type[Exception]]:
+    """The parser of a block of whole lines, and what it raises for a line that is no row:
+    pyarrow's CSV reader where it is installed, else numpy's (drivers/csv_rows.py: the same rows
+    to the bits, the same lines refused; a gateway installs without pyarrow)."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ModuleNotFoundError:
+
+        def parse_numpy(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+            rows = parse_rows(block)
+            if rows.shape[0]:
+                yield np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1:])
+
+        return parse_numpy, RowsError
+
+    # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
+    # nothing of pyarrow's left running when the reading stops at a bad row.
+    read_options = pacsv.ReadOptions(column_names=list(COLUMNS), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
+    parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
+    convert_options = pacsv.ConvertOptions(
+        column_types=dict.fromkeys(COLUMNS, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
+    )
+
+    def parse_arrow(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
+            yield _columns(batch)
+
+    return parse_arrow, pa.ArrowInvalid
 
 
 def _line_problem(line: bytes) -> str | None:
@@ -831,6 +865,8 @@ def write_parquet_recording(
     bytes repeat); both then zstd. The same samples give the same bytes (with the same pyarrow).
     fsync: on the disk before this returns.
     """
+    if not parquet_available():
+        raise RecordingError(f"{path}: writing a Parquet recording {NEEDS_PYARROW}")
     import pyarrow as pa
     import pyarrow.parquet as pq
 
