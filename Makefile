@@ -175,5 +175,23 @@ demo-calibration: $(STAMP)
 	done
 	$(VENV)/bin/bogiemon calibrate $(DEMO_RUNS)/healthy-*.csv --load full -o config/demo_calibration.toml
 
+# The gateway's offline bundle (docs/gateway.md, bundle/build.py): bogiemon's wheel and every
+# wheel of bundle/lock/<ARCH>-cp3XX.txt for CPython 3.11-3.13, the units, the default config and
+# install.sh, as build/bundle/bogiemon-<version>-<ARCH>.tar.gz (about 60 MB; a minute, the wheels
+# from PyPI through pip's cache). `make lock` resolves the lock files again from pyproject.toml's
+# dependencies (a few minutes); the bundle refuses a lock that no longer matches them. Both run in
+# a small venv of their own (build/tools: pip only), not the development venv.
+ARCH ?= $(shell uname -m)
+TOOLS := build/tools/bin/python
+$(TOOLS):
+	$(PYTHON) -m venv build/tools
+
+.PHONY: bundle lock
+bundle: $(TOOLS)
+	$(TOOLS) bundle/build.py --arch $(ARCH)
+
+lock: $(TOOLS)
+	$(TOOLS) bundle/lock.py
+
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis .mypy_cache .ruff_cache build *.egg-info
