@@ -193,5 +193,39 @@ bundle: $(TOOLS)
 lock: $(TOOLS)
 	$(TOOLS) bundle/lock.py
 
+# The bundle tested for real (not part of `make test`): built for ARCH, installed in a Debian root
+# of that architecture made by debootstrap from Debian's packages (arm64 under qemu-user-static;
+# cached in build/debian-<suite>-<arch>, DEBIAN_SUITE=bookworm by default), with no network, where
+# check-config, a replay of a simulated broken spring and `bogiemon run` on it must confirm the
+# fault and store it; then an upgrade and a rollback (tests/bundle/). Root only. test-arm is
+# ARCH=aarch64: the first run about 15 minutes (the root), later ones about 6 (docs/gateway.md).
+FAULT_RUN := build/bundle/broken-spring.csv
+$(FAULT_RUN): | $(STAMP)
+	mkdir -p build/bundle
+	$(VENV)/bin/bogiemon simulate --load full --track erri-low --speed-kmh 80 --duration-s 240 \
+		--fault type_a:rear_outer:0.0@leading-left --fault-at-s 60 --seed 2 -q -o $@
+
+.PHONY: test-arm test-bundle
+test-arm:
+	$(MAKE) test-bundle ARCH=aarch64
+
+test-bundle: $(FAULT_RUN) bundle
+	bash tests/bundle/in_debian_root.sh $(ARCH) build/bundle/bogiemon-$$($(TOOLS) -c 'import sys; sys.path.insert(0, "bundle"); import build; print(build.version())')-$(ARCH).tar.gz $(FAULT_RUN)
+
+# The CAN path on a real kernel (not part of `make test`): this machine's kernel has no SocketCAN,
+# so Debian's own kernel boots in QEMU (software emulation, about 12x slower than the host) with
+# vcan0 up and this checkout, its venv included, shared read-only (tests/vm/: setup.sh once, as
+# root, about 90 MB of packages; then run.sh). The `vcan`-marked tests run there: `bogiemon play`
+# and can-utils into the CAN source, and the recvmmsg reader against python-can on an AF_CAN socket
+# (about 3 minutes; the count is printed).
+VM_OUT := build/vm-out
+.PHONY: test-vcan vm-setup
+vm-setup:
+	bash tests/vm/setup.sh
+
+test-vcan: $(STAMP) vm-setup
+	mkdir -p $(VM_OUT)
+	VM_OUT=$(abspath $(VM_OUT)) bash tests/vm/run.sh "cd $(CURDIR) && PYTHONDONTWRITEBYTECODE=1 $(PY) -m pytest -p no:cacheprovider -m vcan -rA -q tests/drivers/test_vcan.py"
+
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis .mypy_cache .ruff_cache build *.egg-info
