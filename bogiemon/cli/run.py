@@ -16,9 +16,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.logs import configure_logging
     from bogiemon.daemon.service import Service
-    from bogiemon.daemon.sources import open_source
+    from bogiemon.daemon.sources import open_service_source
 
     configure_logging(level=args.log_level)
-    service = Service(args.config, open_source, load=args.load)
+    service = Service(args.config, open_service_source, load=args.load)
     service.install_signal_handlers()
     return service.run()

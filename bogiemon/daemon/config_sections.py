@@ -495,3 +495,20 @@ class RecorderConfig(Section):
                 f"({self.periodic_every_h:g} h = {self.periodic_every_h * 3600:g} s)"
             )
         return self
+
+
+class DutyConfig(Section):
+    """A battery-fed unit's duty cycle (daemon/duty.py, docs/gateway.md)."""
+
+    enabled: bool = False
+    measure_min: float = Field(60.0, gt=0, le=1440)
+    every_min: float = Field(60.0, gt=0, le=1440)
+    standing_after_s: float = Field(60.0, gt=0, le=3600)
+    probe_every_s: float = Field(60.0, gt=0, le=3600)
+    probe_s: float = Field(2.0, gt=0, le=60)
+
+    @model_validator(mode="after")
+    def _measure_within_the_cycle(self) -> DutyConfig:
+        if self.measure_min > self.every_min:
+            raise ValueError(f"measure_min ({self.measure_min:g}) must not exceed every_min ({self.every_min:g})")
+        return self

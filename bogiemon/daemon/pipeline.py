@@ -3,7 +3,8 @@
 Everything the daemon concludes happens in the processing thread (the monitor and its event
 store); the source thread only reads and copies, so a slow disk or a burst of windows never
 makes the source miss frames, and a stalled source never blocks the processing of what arrived.
-The watchdog asks `last_progress_monotonic`: it moves only when a block passed through.
+The watchdog asks `last_progress_monotonic`: it moves only when a block passed through, or while
+the source rests on purpose (a duty cycle, daemon/duty.py).
 """
 
 from __future__ import annotations
@@ -86,6 +87,8 @@ class Pipeline:
                     self.error = exc
                     break
                 if block is None:
+                    if self.source.resting:  # a duty cycle's rest: no data, on purpose, and no stall
+                        self.last_progress_monotonic = time.monotonic()
                     continue
                 stored = self.ring.put(block, timeout_s=READ_TIMEOUT_S)
                 while not stored and self.ring.backpressure and not self._stop.is_set():

@@ -271,7 +271,7 @@ class Service:
             self._log.info("reloaded", config_hash=new.digest(), unchanged=True, windows_restart=False)
             self.notifier.ready(status="reloaded: the config is unchanged")
             return pipeline
-        restart_source = new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline
+        restart_source = new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline or new.duty != old.duty
         source_stopped = False
         restarted: list[bool] = []
         try:
