@@ -25,6 +25,7 @@ import shutil
 import subprocess
 import sys
 import tarfile
+import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -88,7 +89,14 @@ def build(arch: str, out_dir: Path = OUT_DIR) -> Path:
             f"--python-version={python}", "--implementation=cp", f"--abi={abi}", "--abi=abi3", "--abi=none",
             "-r", str(lock), "-d", str(folder / "wheels"))  # fmt: skip
         shutil.copy2(lock, folder / "lock" / lock.name)
-    pip("wheel", "--no-deps", "-w", str(folder / "wheels"), str(REPO))
+    with tempfile.TemporaryDirectory() as tmp:
+        # The package built from a copy of what makes it: setuptools keeps a build/ folder beside
+        # the project, whose leftovers (a module since deleted) would go into the wheel.
+        source = Path(tmp) / "bogiemon"
+        shutil.copytree(REPO / "bogiemon", source / "bogiemon", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        for file in ("pyproject.toml", "README.md"):
+            shutil.copy2(REPO / file, source / file)
+        pip("wheel", "--no-deps", "-w", str(folder / "wheels"), str(source))
     own = sorted((folder / "wheels").glob("bogiemon-*.whl"))
     if len(own) != 1:
         raise BundleError(f"expected one bogiemon wheel in {folder / 'wheels'}, found {len(own)}")

@@ -106,9 +106,10 @@ install_bundle() {
         # The lock without pip: pip is the installer's, run from its wheel, not the gateway's.
         requirements=$(mktemp)
         grep -v '^pip==' "$lock" > "$requirements"
-        # pip from its wheel, run by the new venv's python: it installs there, from the bundle only,
+        # pip from its wheel, run by the new venv's python: it installs there, from the bundle only
+        # (--isolated: no pip.conf nor PIP_* variable of this machine adds an index or a link),
         # each wheel checked against the lock's hash, nothing resolved.
-        if ! "$target/bin/python" "$pip_wheel/pip" install --quiet --disable-pip-version-check --no-index --no-deps \
+        if ! "$target/bin/python" "$pip_wheel/pip" install --isolated --quiet --disable-pip-version-check --no-index --no-deps \
             --no-warn-script-location --find-links "$HERE/wheels" --require-hashes -r "$requirements" -r "$HERE/lock/bogiemon.txt"; then
             rm -f "$requirements"
             fail "pip could not install the bundle's wheels into $target (above)"

@@ -57,5 +57,7 @@ rm -rf "$ROOT/opt/bogiemon" "$ROOT/etc/bogiemon" "$ROOT/var/lib/bogiemon" "$ROOT
 mkdir -p "$ROOT/tmp/bogiemon-test"
 cp "$BUNDLE" "$FAULT" "$REPO/tests/bundle/inside.sh" "$REPO/bogiemon/config/demo_calibration.toml" "$ROOT/tmp/bogiemon-test/"
 t=$(ts)
-unshare --mount --net /bin/sh -c "mount -t proc proc '$ROOT/proc' && exec chroot '$ROOT' /bin/sh /tmp/bogiemon-test/inside.sh '$(basename "$BUNDLE")' '$(basename "$FAULT")'"
+# A gateway's environment, not this machine's: no PIP_* variable, no venv, no PYTHONPATH.
+unshare --mount --net env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root LANG=C.UTF-8 \
+    /bin/sh -c "mount -t proc proc '$ROOT/proc' && exec chroot '$ROOT' /bin/sh /tmp/bogiemon-test/inside.sh '$(basename "$BUNDLE")' '$(basename "$FAULT")'"
 echo "in_debian_root: PASS: $SUITE $DEBARCH, $(el "$t") s in the root"

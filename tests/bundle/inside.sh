@@ -52,6 +52,8 @@ load = "full"
 [source]
 kind = "replay"
 path = "/tmp/bogiemon-test/$FAULT"
+# As fast as the daemon reads it, not at the pace of the wagon.
+realtime = false
 TOML
 /opt/bogiemon/bin/bogiemon run --config /etc/bogiemon/run.toml > run.log 2>&1 || { tail -20 run.log; fail "run failed"; }
 /opt/bogiemon/bin/bogiemon events --config /etc/bogiemon/run.toml > events.txt
