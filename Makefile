@@ -87,6 +87,18 @@ bench-daemon: $(STAMP)
 bench-study: $(STAMP)
 	$(PY) bench/bench_study.py
 
+# The gateway (docs/gateway.md): the bundle's install on disk (build it first: make bundle), a
+# wagon's day of CPU with and without a duty cycle from stretches measured at real time (about 12
+# minutes), and what a duty cycle costs the detection of a broken spring (a 2 h simulated run, once).
+.PHONY: bench-gateway bench-vcan
+bench-gateway: $(STAMP)
+	$(PY) bench/bench_gateway.py $(BENCH_ARGS)
+
+# The CAN path on a real kernel (root; the VM of make test-vcan): `bogiemon run` on vcan0 beside
+# candump on the same frames, their CPU ratio and the daemon's peak RSS (about 7 minutes).
+bench-vcan: $(STAMP) vm-setup
+	$(PY) bench/bench_vcan.py $(BENCH_ARGS)
+
 # The back office: `fleet analyze` of a simulated fleet on 1 and 2 Dask workers, against `analyze`.
 .PHONY: bench-fleet
 bench-fleet: $(STAMP)
