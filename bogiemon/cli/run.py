@@ -24,10 +24,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         from bogiemon.daemon.logs import configure_logging
         from bogiemon.daemon.service import Service
-        from bogiemon.daemon.sources import open_source
+        from bogiemon.daemon.sources import open_service_source
 
         configure_logging(level=args.log_level)
-        service = Service(args.config, open_source, load=args.load, state_dir=args.state_dir, requests=requests)
+        service = Service(args.config, open_service_source, load=args.load, state_dir=args.state_dir, requests=requests)
         return service.run()
     finally:
         requests.quiet()

@@ -25,6 +25,7 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from bogiemon.daemon.config_decision import DecisionConfig
 from bogiemon.daemon.config_delivery import CanAlarmsConfig, MqttConfig, RecorderConfig
+from bogiemon.daemon.config_duty import DutyConfig
 from bogiemon.daemon.config_sections import (  # the sections, importable from here as before
     ConfigError,
     GeometryConfig,
@@ -53,6 +54,7 @@ from bogiemon.detection import BogieGeometry, ProcessingSettings
 from bogiemon.drivers.files import FileKind, read_untrusted
 
 if TYPE_CHECKING:
+    from bogiemon.daemon.duty import DutySettings
     from bogiemon.daemon.recorder import RecorderSettings
     from bogiemon.judgement.verdict import MonitorSettings
 
@@ -63,6 +65,7 @@ __all__ = [
     "CanSourceConfig",
     "ConfigError",
     "DecisionConfig",
+    "DutyConfig",
     "GeometryConfig",
     "HealthConfig",
     "MqttConfig",
@@ -120,6 +123,18 @@ class BogiemonConfig(Section):
     mqtt: MqttConfig = MqttConfig()
     can_alarms: CanAlarmsConfig = CanAlarmsConfig()
     recorder: RecorderConfig = RecorderConfig()
+    duty: DutyConfig = DutyConfig()
+
+    @model_validator(mode="after")
+    def _duty_measures_a_window(self) -> BogiemonConfig:
+        d = self.duty
+        if d.enabled and d.measure_min * 60.0 < self.processing.window_s + self.processing.hop_s:
+            raise ValueError(
+                f"duty.measure_min ({d.measure_min:g} min) must hold more than one analysis window and a hop "
+                f"(processing.window_s + hop_s = {self.processing.window_s + self.processing.hop_s:g} s): a shorter "
+                "measurement is never judged"
+            )
+        return self
 
     @model_validator(mode="after")
     def _mqtt_needs_the_wagon(self) -> BogiemonConfig:
@@ -276,6 +291,22 @@ class BogiemonConfig(Section):
             load_states=self.load_signatures(),
             load_discriminant=self.load_discriminant() if load is LoadSetting.AUTO else None,
             not_judged_after_s=3600.0 * self.decision.not_judged_after_h,
+        )
+
+    def duty_settings(self) -> DutySettings | None:
+        """The duty cycle's settings (daemon/duty.py); None when [duty] is not enabled."""
+        from bogiemon.daemon.duty import DutySettings  # only when enabled
+
+        d = self.duty
+        if not d.enabled:
+            return None
+        return DutySettings(
+            measure_s=d.measure_min * 60.0,
+            cycle_s=d.every_min * 60.0,
+            standing_after_s=d.standing_after_s,
+            probe_every_s=d.probe_every_s,
+            probe_s=d.probe_s,
+            standstill_rms_mps2=self.health.standstill_rms_mps2,
         )
 
     def recorder_settings(self) -> RecorderSettings | None:

@@ -3,7 +3,8 @@
 Everything the daemon concludes happens in the processing thread (the monitor and its event
 store); the source thread only reads and copies, so a slow disk or a burst of windows never
 makes the source miss frames, and a stalled source never blocks the processing of what arrived.
-The watchdog asks `last_progress_monotonic`: it moves only when a block passed through.
+The watchdog asks `last_progress_monotonic`: it moves only when a block passed through, or while
+the source rests on purpose (a duty cycle, daemon/duty.py).
 """
 
 from __future__ import annotations
@@ -21,6 +22,21 @@ from bogiemon.drivers.base import EndOfStream, Source
 from bogiemon.drivers.recording import RecordingError
 
 READ_TIMEOUT_S = 0.5
+PR_SET_NAME = 15  # linux/prctl.h
+
+
+def name_os_thread(name: str) -> None:
+    """Give the calling thread its name in the kernel too (15 bytes), where `top -H`, `ps -L` and
+    /proc/PID/task/TID/comm show it: which of the daemon's threads spends the CPU. Linux only;
+    elsewhere, or if the call fails, the thread keeps the process's name."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).prctl(PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
 # A live source this far behind real time (Source.behind_s: samples received and not yet handed
 # on, beyond the block being filled) is said in the journal at warning, and once it has caught up
 # at info with how far behind it was at most and for how long: after a burst of errors or a stall
@@ -89,6 +105,7 @@ class Pipeline:
             return fn(self.monitor)
 
     def _read_loop(self) -> None:
+        name_os_thread("bogiemon-source")
         behind = None if self.source.finite else BehindWatch(self._log)
         try:
             while not self._stop.is_set():
@@ -105,6 +122,8 @@ class Pipeline:
                 if behind is not None:
                     behind.observe(self.source.behind_s())
                 if block is None:
+                    if self.source.resting:  # a duty cycle's rest: no data, on purpose, and no stall
+                        self.last_progress_monotonic = time.monotonic()
                     continue
                 stored = self.ring.put(block, timeout_s=READ_TIMEOUT_S)
                 while not stored and self.ring.backpressure and not self._stop.is_set():
@@ -116,6 +135,7 @@ class Pipeline:
             self.ring.close()
 
     def _process_loop(self) -> None:
+        name_os_thread("bogiemon-core")
         try:
             while True:
                 try:

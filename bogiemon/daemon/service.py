@@ -308,7 +308,7 @@ class Service:
             self._log.info("reloaded", config_hash=new.digest(), files_hash=snapshot.digest, unchanged=True, windows_restart=False)
             self.notifier.ready(status="reloaded: the config is unchanged")
             return pipeline
-        restart_source = bool(changed & {"source", "pipeline"})  # its settings, or a file it reads (a DBC, the recording)
+        restart_source = bool(changed & {"source", "pipeline", "duty"})  # its settings, or a file it reads (a DBC, the recording), or its duty cycle
         source_stopped = False
         restarted: list[bool] = []
         try:

@@ -132,6 +132,14 @@ class LiveSource(Source, Generic[DeviceT]):
     def close(self) -> None:
         self._close_device()
 
+    def pause(self) -> None:
+        """Close the device on purpose (Source.pause): the samples not handed out yet are dropped,
+        and the next read opens it again as the first did (no disconnect, reconnect or gap counted)."""
+        self._close_device()
+        self._restart()
+        self._queue.discard()
+        self._opened_before = False
+
     # ---- the open/lose/close cycle ---------------------------------------------------------
 
     def _start(self) -> None:

@@ -62,21 +62,23 @@ from bogiemon.drivers.recording_format import (
     MAX_LINE_BYTES,
     MAX_RECORDING_BYTES,
     MIN_ACCEL_MPS2,
+    NEEDS_PYARROW,
     PARQUET_MAGIC,
     PARQUET_SUFFIX,
     RECORDING_FILE,
     Recording,
     RecordingError,
     RecordingFormat,
+    parquet_available,
     is_sample_recording_name,
 )
 from bogiemon.drivers.recording_parquet import MAX_PARQUET_GROUP_ROWS, PARQUET_GROUP_ROWS, ParquetRecordingReader, write_parquet_recording
 
 __all__ = [
     "ACCEL_LSB_MPS2", "COLUMNS", "GZIP_LEVEL", "HEADER", "MAX_ACCEL_MPS2", "MAX_INFLATE_RATIO", "MAX_LINE_BYTES",
-    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC", "PARQUET_SUFFIX",
+    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "NEEDS_PYARROW", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC", "PARQUET_SUFFIX",
     "RECORDING_FILE", "REFERENCE_STEPS", "TIME_STEP_TOLERANCE", "Recording", "RecordingError", "RecordingFormat",
-    "RecordingReader", "is_sample_recording_name", "open_recording_reader", "read_csv_recording", "read_recording",
+    "RecordingReader", "is_sample_recording_name", "open_recording_reader", "parquet_available", "read_csv_recording", "read_recording",
     "write_csv_recording", "write_parquet_recording", "write_recording",
 ]  # fmt: skip
 
@@ -90,6 +92,8 @@ def open_recording_reader(path: str | Path, min_samples: int = 2) -> RecordingRe
     path = Path(path)
     with open_untrusted(path, RECORDING_FILE, RecordingError) as f:
         parquet = path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and os.pread(f.fileno(), 4, 0) == PARQUET_MAGIC)
+    if parquet and not parquet_available():
+        raise RecordingError(f"{path}: a Parquet recording {NEEDS_PYARROW}")
     reader: RecordingReader = ParquetRecordingReader(path) if parquet else CsvRecordingReader(path)
     reader.open(min_samples)
     return reader

@@ -7,7 +7,7 @@ from __future__ import annotations
 import gzip
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -15,6 +15,7 @@ from typing import BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.drivers.csv_rows import NUMBER, RowsError, parse_rows
 from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.files import UntrustedFile, open_untrusted, size_text
 from bogiemon.drivers.recording_check import RecordingReader
@@ -28,7 +29,7 @@ GZIP_LEVEL = 6
 
 # A number as pyarrow's CSV reader takes it (spaces and tabs around it allowed): the slow path
 # that names a bad line must find the line pyarrow refused, not one Python's float() refuses.
-_NUMBER = re.compile(rb"[ \t]*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan(?:\([0-9A-Za-z_]*\))?|inf(?:inity)?)[ \t]*", re.I)
+_NUMBER = NUMBER  # numpy's parser (drivers/csv_rows.py) keeps to it too
 _NOT_BREAK = re.compile(rb"[^\r\n]+")
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 
@@ -84,20 +85,7 @@ class CsvRecordingReader(RecordingReader):
         raise AssertionError(f"row {row} not found in {self.path}")  # pragma: no cover - rows come from the file
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-
-        # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
-        # nothing of pyarrow's left running when the reading stops at a bad row.
-        read_options = pacsv.ReadOptions(column_names=list(COLUMNS), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
-        parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
-        convert_options = pacsv.ConvertOptions(
-            column_types=dict.fromkeys(COLUMNS, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
-        )
-        def parse(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-            for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
-                yield arrow_columns(batch)
-
+        parse, refused = _csv_parser()
         number = 2  # the first line of the block
         with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
             _skip(f, self._header_bytes)
@@ -105,7 +93,7 @@ class CsvRecordingReader(RecordingReader):
                 for block in _line_blocks(f):
                     try:
                         yield from parse(block)
-                    except pa.ArrowInvalid as exc:
+                    except refused as exc:
                         if not block.strip(b"\r\n"):
                             continue  # blank lines alone: pyarrow calls that an empty file
                         # The rows before the bad line are used; then the error names it.
@@ -131,6 +119,40 @@ class CsvRecordingReader(RecordingReader):
                 break
             start, number = found.end(), number + 1
         return len(block), f"cannot parse the rows: {quoted(parse_error, 200)}"
+
+
+CsvParse = Callable[[bytes], Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]]
+
+
+def _csv_parser() -> tuple[CsvParse, type[Exception]]:
+    """The parser of a block of whole lines, and what it raises for a line that is no row:
+    pyarrow's CSV reader where it is installed, else numpy's (drivers/csv_rows.py: the same rows
+    to the bits, the same lines refused; a gateway installs without pyarrow)."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ModuleNotFoundError:
+
+        def parse_numpy(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+            rows = parse_rows(block)
+            if rows.shape[0]:
+                yield np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1:])
+
+        return parse_numpy, RowsError
+
+    # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
+    # nothing of pyarrow's left running when the reading stops at a bad row.
+    read_options = pacsv.ReadOptions(column_names=list(COLUMNS), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
+    parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
+    convert_options = pacsv.ConvertOptions(
+        column_types=dict.fromkeys(COLUMNS, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
+    )
+
+    def parse_arrow(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
+            yield arrow_columns(batch)
+
+    return parse_arrow, pa.ArrowInvalid
 
 
 def _line_problem(line: bytes) -> str | None:

@@ -6,6 +6,7 @@ recording_parquet.py, the checks of every row in recording_check.py)."""
 from __future__ import annotations
 
 import enum
+import importlib.util
 from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +67,15 @@ class RecordingFormat(enum.StrEnum):
 
 class RecordingError(ValueError):
     """A recording that cannot be used; the message names the file, the line and the remedy."""
+
+
+# Parquet is pyarrow's, which a gateway may be installed without (CSV is read either way).
+NEEDS_PYARROW = "needs pyarrow, which this install leaves out: pip install 'bogiemon[recordings]', or use CSV (.csv.gz)"
+
+
+def parquet_available() -> bool:
+    """Whether pyarrow, which Parquet recordings need, is installed (and not hidden, as a test hides it)."""
+    return importlib.util.find_spec("pyarrow") is not None
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from bogiemon.drivers.files import UntrustedFile, open_untrusted
 from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, RECORDING_FILE, RecordingError, arrow_columns, recording_rows, short_error
+from bogiemon.drivers.recording_format import COLUMNS, NEEDS_PYARROW, RECORDING_FILE, RecordingError, parquet_available, arrow_columns, recording_rows, short_error
 
 if TYPE_CHECKING:
     import pyarrow.parquet as pq
@@ -123,6 +123,8 @@ def write_parquet_recording(
     bytes repeat); both then zstd. The same samples give the same bytes (with the same pyarrow).
     fsync: on the disk before this returns.
     """
+    if not parquet_available():
+        raise RecordingError(f"{path}: writing a Parquet recording {NEEDS_PYARROW}")
     import pyarrow as pa
     import pyarrow.parquet as pq
 

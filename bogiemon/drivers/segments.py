@@ -221,6 +221,13 @@ class SampleQueue:
         """Whatever arrives next belongs to a new segment."""
         self._open = False
 
+    def discard(self) -> None:
+        """Drop every sample not handed out yet; what arrives next starts afresh, as the first
+        samples did (its first Block is not counted in `gaps`)."""
+        self._segments.clear()
+        self._open = False
+        self._blocks_out = 0
+
     def append(
         self,
         accel_mps2: NDArray[np.float64],

@@ -1,13 +1,17 @@
-"""The pipeline's source thread tells the journal when a live source falls behind real time, by how
-much, and when it has caught up (daemon/pipeline.py BehindWatch)."""
+"""The pipeline (daemon/pipeline.py): its source thread tells the journal when a live source falls
+behind real time, by how much, and when it has caught up (BehindWatch); its threads are named in
+the kernel, where `top -H` shows them."""
 
 from __future__ import annotations
+
+import threading
+from pathlib import Path
 
 import structlog
 
 from bogiemon.daemon.config import parse_config
 from bogiemon.daemon.monitor import MemoryEventLog, Monitor
-from bogiemon.daemon.pipeline import BEHIND_S, BehindWatch, Pipeline
+from bogiemon.daemon.pipeline import BEHIND_S, BehindWatch, Pipeline, name_os_thread
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source
 from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config
@@ -78,3 +82,17 @@ def test_the_pipeline_logs_a_live_source_that_falls_behind_and_catches_up() -> N
     said = [e for e in logs if "real time" in e["event"]]
     assert [e["event"] for e in said] == ["the source fell behind real time", "the source caught up with real time"]
     assert said[0]["behind_s"] == 1.5 and said[1]["behind_at_most_s"] == 4.0
+
+
+def test_a_thread_named_for_the_kernel_shows_its_name_in_proc() -> None:
+    seen: list[str] = []
+
+    def run() -> None:
+        name_os_thread("bogiemon-source-and-more")  # longer than the kernel's 15 bytes
+        seen.append(Path(f"/proc/self/task/{threading.get_native_id()}/comm").read_text().strip())
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+    assert seen == ["bogiemon-source"]
+    assert Path(f"/proc/self/task/{threading.get_native_id()}/comm").read_text().strip() != "bogiemon-source"

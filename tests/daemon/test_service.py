@@ -264,19 +264,20 @@ def test_a_reload_that_changes_the_processing_restarts_the_windows_and_says_so(
 
 
 def test_service_keeps_blas_to_one_thread_while_it_runs_and_restores_it_after(short_config: Path) -> None:
-    from bogiemon.daemon.blas import loaded_blas_libraries
+    from bogiemon.daemon.blas import blas_thread_counts
 
-    libraries = loaded_blas_libraries()
-    if not libraries or all(lib.get_num_threads() == 1 for lib in libraries):
-        pytest.skip("no OpenBLAS with more than one thread here: nothing for the service to limit")
-    before = [lib.get_num_threads() for lib in libraries]
-    seen: list[list[int]] = []
-    blocks = as_blocks(bogie_accel(30, seed=2))
-    service = Service(short_config, lambda config: FiniteMemorySource(blocks), sinks=[],
-                      observers=[lambda report: seen.append([lib.get_num_threads() for lib in libraries])])  # fmt: skip
-    assert service.run() == 0
-    assert seen and all(counts == [1] * len(libraries) for counts in seen)
-    assert [lib.get_num_threads() for lib in libraries] == before
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=2, user_api="blas"):  # the tests' workers may run with one thread
+        before = blas_thread_counts()
+        assert before and all(n == 2 for n in before.values())
+        seen: list[dict[str, int]] = []
+        blocks = as_blocks(bogie_accel(30, seed=2))
+        service = Service(short_config, lambda config: FiniteMemorySource(blocks), sinks=[],
+                          observers=[lambda report: seen.append(blas_thread_counts())])  # fmt: skip
+        assert service.run() == 0
+        assert seen and all(counts == dict.fromkeys(before, 1) for counts in seen)
+        assert blas_thread_counts() == before
 
 
 def test_a_state_dir_given_to_the_service_holds_its_events_and_a_reload_keeps_it(

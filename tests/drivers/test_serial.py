@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import binascii
 import os
 import time
 import tty
@@ -45,6 +46,13 @@ def test_crc_is_ccitt_false_by_its_check_value() -> None:
 def test_batch_crc_equals_the_bitwise_reference(rows: list[bytes]) -> None:
     batch = crc16_ccitt_false_rows(np.frombuffer(b"".join(rows), np.uint8).reshape(len(rows), 11))
     assert batch.tolist() == [crc_bitwise(r) for r in rows]
+
+
+def test_batch_crc_equals_binascii_on_random_packets() -> None:
+    rows = np.random.default_rng(35).integers(0, 256, size=(1000, 11), dtype=np.uint8)
+    expected = [binascii.crc_hqx(row.tobytes(), 0xFFFF) for row in rows]
+    assert crc16_ccitt_false_rows(rows).tolist() == expected
+    assert [crc16_ccitt_false(row.tobytes()) for row in rows] == expected
 
 
 def test_a_packet_is_laid_out_byte_by_byte_as_documented() -> None:
