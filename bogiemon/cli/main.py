@@ -11,9 +11,9 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bogiemon.cli import analyze, calibrate, check_config, demo, evaluate, events, fleet, listen, play, replay, run, simulate, study
+from bogiemon.cli import analyze, calibrate, check_config, convert, demo, evaluate, events, fleet, listen, play, replay, run, simulate, study
 
-COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, fleet, play, listen)
+COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, fleet, play, listen, convert)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback. Named, not
 # imported, so that the command line loads only the command it runs; a test resolves every name.
 USER_ERRORS: frozenset[str] = frozenset(

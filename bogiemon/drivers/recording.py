@@ -44,13 +44,12 @@ recording_parquet.py (each format's reader and writer).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.files import open_untrusted
+from bogiemon.drivers.files import UntrustedFile, open_untrusted
 from bogiemon.drivers.recording_check import REFERENCE_STEPS, TIME_STEP_TOLERANCE, RecordingReader
 from bogiemon.drivers.recording_csv import GZIP_LEVEL, CsvRecordingReader, write_csv_recording
 from bogiemon.drivers.recording_format import (
@@ -83,26 +82,36 @@ __all__ = [
 ]  # fmt: skip
 
 
-def open_recording_reader(path: str | Path, min_samples: int = 2) -> RecordingReader:
+def open_recording_reader(path: str | Path | UntrustedFile, min_samples: int = 2) -> RecordingReader:
     """Open a recording (CSV, .csv.gz or Parquet, by its name or its first bytes) for reading.
+
+    path: a name, or a file already opened by open_untrusted (read through its descriptor, never
+    by its name again). The reader holds the file open until close().
 
     RecordingError naming the file for a file that cannot be read, is no recording, holds fewer
     than min_samples rows (a bad row in it named first), or whose times give no finite rate.
     """
-    path = Path(path)
-    with open_untrusted(path, RECORDING_FILE, RecordingError) as f:
-        parquet = path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and os.pread(f.fileno(), 4, 0) == PARQUET_MAGIC)
-    if parquet and not parquet_available():
-        raise RecordingError(f"{path}: a Parquet recording {NEEDS_PYARROW}")
-    reader: RecordingReader = ParquetRecordingReader(path) if parquet else CsvRecordingReader(path)
-    reader.open(min_samples)
+    f = path.reopen(RECORDING_FILE) if isinstance(path, UntrustedFile) else open_untrusted(path, RECORDING_FILE, RecordingError)
+    try:
+        parquet = f.path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and f.head(4) == PARQUET_MAGIC)
+        if parquet and not parquet_available():
+            raise RecordingError(f"{f.path}: a Parquet recording {NEEDS_PYARROW}")
+        reader: RecordingReader = ParquetRecordingReader(f) if parquet else CsvRecordingReader(f)
+        reader.open(min_samples)
+    except BaseException:
+        f.close()
+        raise
     return reader
 
 
 def read_recording(path: str | Path, min_samples: int = 2) -> Recording:
     """Read and check a whole recording (CSV, .csv.gz or Parquet) into memory; RecordingError
     naming the file and line on any problem."""
-    return open_recording_reader(path, min_samples).read_all()
+    reader = open_recording_reader(path, min_samples)
+    try:
+        return reader.read_all()
+    finally:
+        reader.close()
 
 
 def read_csv_recording(path: str | Path, min_samples: int = 2) -> Recording:

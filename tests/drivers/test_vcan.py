@@ -36,7 +36,7 @@ from bogiemon.drivers.base import Block
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.canbus import BusRole, open_bus
 from bogiemon.drivers.player import encode_instants
-from bogiemon.drivers.replay import CanLogReplaySource
+from bogiemon.drivers.replay_can import CanLogReplaySource
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, silences_heard, write_recording
 
 CHANNEL = "vcan0"
