@@ -6,12 +6,17 @@ without a duty cycle ([duty], daemon/duty.py).
     MB on disk of the version's tree, beside the 434 MB of the pip install before the extras were
     split off (pyarrow 170 MB, scipy 143 MB).
 (b) A wagon's day, 6 h running and 18 h standing, extrapolated from three stretches measured at
-    real time on the hub's CAN layout at 500 Hz (the service in this process, its CAN source on
-    python-can's virtual bus fed by a player thread whose own CPU is subtracted, as
-    bench_daemon.py's CAN feed): running, measured the whole time (the daemon's steady state, its
-    windows judged); standing with [duty] on (every channel still: after standing_after_s the
-    source rests, with a listen of probe_s every probe_every_s); and a rest between two
-    measurements of a cycle (the source closed, no listen). The day without a duty cycle is
+    real time on the hub's CAN layout at 500 Hz. The service runs in this process on the
+    gateway's own CAN path: the `socketcan` kind, its frames read with recvmmsg(2) and parsed with
+    numpy, from a socket that is a UDP one here (this kernel has no AF_CAN; tests/drivers/frames.py:
+    DatagramCanBus, bound to one port so that a reopened bus gets the frames again) carrying the
+    kernel's struct can_frame datagrams with their receive stamps; a sender in a process of its own
+    plays the hub's frames there (python-can's virtual bus would need the player in the daemon's
+    process, whose activity there weighs on a resting daemon's few wake-ups). The stretches:
+    running, measured the whole time (the daemon's steady state, its windows judged); standing
+    with [duty] on (every channel still: after standing_after_s the source rests, with a listen of
+    probe_s every probe_every_s); and a rest between two measurements of a cycle (the source
+    closed, no listen). The day without a duty cycle is
     6 h x running + 18 h x standing; with a cycle of M minutes in every N, the running hours are
     M/N x running + (1 - M/N) x resting. A measurement's first window_s only fills the window and
     costs less than the steady state, so the running figure over-counts a cycle slightly.
@@ -30,6 +35,8 @@ import argparse
 import os
 import platform
 import shlex
+import socket
+import struct
 import subprocess
 import sys
 import tarfile
@@ -42,19 +49,22 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1]))  # tests.drivers.frames: the datagram stand-in of SocketCAN
 
 import guard  # noqa: E402
-from bench_daemon import FS_HZ, PLAYER_THREAD, START_UP_S, BenchError, healthy_accel  # noqa: E402
+from bench_daemon import FS_HZ, START_UP_S, BenchError, healthy_accel  # noqa: E402
 from timing import Figure, table  # noqa: E402
 
-from bogiemon.daemon.config import load_config  # noqa: E402
+from can.interfaces import socketcan  # noqa: E402
+
+from bogiemon.daemon.config import BogiemonConfig, load_config  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
 from bogiemon.daemon.sources import duty_cycled  # noqa: E402
 from bogiemon.drivers.base import Source  # noqa: E402
 from bogiemon.drivers.can_source import CanBusPort, CanSource  # noqa: E402
 from bogiemon.drivers.candb import load_layout  # noqa: E402
-from bogiemon.drivers.player import open_player_bus, play  # noqa: E402
+from bogiemon.drivers.can_frames import SO_TIMESTAMPNS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 COMMAND = "make bench-gateway"
@@ -108,50 +118,98 @@ def standing_accel(duration_s: float, seed: int) -> np.ndarray:
     return rng.standard_normal((int(duration_s * FS_HZ), 3)) * STANDING_NOISE_MPS2 + [0.0, 0.0, 9.81]
 
 
-def stretch_cpu_s_per_h(accel: np.ndarray, config_text: str, from_s: float, seconds: float, seed: int) -> float:
-    """The daemon's CPU s/h between from_s and from_s + seconds after the player starts (its own CPU subtracted)."""
-    channel = f"bench-gateway-{os.getpid()}-{seed}-{time.monotonic_ns()}"
+SENDER = """
+import socket, sys, time
+import numpy as np
+frames = np.load(sys.argv[1])  # (instants, 16): each instant's struct can_frame (the hub: one)
+port, fs_hz = int(sys.argv[2]), float(sys.argv[3])
+out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+start = time.monotonic()
+sent = 0
+while sent < len(frames):
+    due = min(len(frames), int((time.monotonic() - start) * fs_hz) + 1)
+    for i in range(sent, due):
+        out.sendto(frames[i].tobytes(), ("127.0.0.1", port))
+    sent = due
+    time.sleep(0.01)
+"""
+
+
+def hub_datagrams(accel: np.ndarray, path: Path) -> None:
+    """The hub's frames of a run, one struct can_frame (16 bytes) an instant, saved for the sender."""
+    from bogiemon.drivers.player import encode_instants
+
     layout = load_layout(None, "hub")
-    samples: list[tuple[float, float, float]] = []  # process CPU, player CPU, wall
-    with tempfile.TemporaryDirectory() as tmp:
-        config_path = Path(tmp) / "bogiemon.toml"
-        source = f'[source]\nkind = "can"\ninterface = "virtual"\nchannel = "{channel}"\nlayout = "hub"\n'
-        config_path.write_text(f'{source}{config_text}[state]\ndirectory = "{Path(tmp) / "state"}"\n')
-        bus = open_player_bus("virtual", channel)
+    frames = [frame for instant in encode_instants(layout, accel) for frame in instant]
+    if len(frames) != accel.shape[0]:
+        raise BenchError("the hub layout sends one frame an instant")
+    raw = b"".join(struct.pack("=IB3x8s", frame_id, len(payload), payload) for frame_id, _, payload in frames)
+    np.save(path, np.frombuffer(raw, np.uint8).reshape(-1, 16))
 
-        def run_player() -> None:
-            time.sleep(START_UP_S)
-            play(bus, layout, accel, FS_HZ, rate=1.0)
-            bus.shutdown()
 
-        configure_logging(stream=open(os.devnull, "w"))  # noqa: SIM115 - closed at exit
-        player = threading.Thread(target=run_player, name=PLAYER_THREAD, daemon=True)
-        player.start()
-        assert player.ident is not None
-        player_clock = time.pthread_getcpuclockid(player.ident)
+def stretch_cpu_s_per_h(accel: np.ndarray, config_text: str, from_s: float, seconds: float, seed: int) -> float:
+    """The daemon's CPU s/h between from_s and from_s + seconds after the sender starts."""
+    from tests.drivers.frames import DatagramCanBus
 
-        def opened(config: object) -> Source:
-            return duty_cycled(CanSource(CanBusPort("virtual", channel), layout, FS_HZ), config)  # type: ignore[arg-type]
+    layout = load_layout(None, "hub")
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]  # a free port for the daemon's socket, every reopening
+    probe.close()
 
-        service = Service(config_path, opened, sinks=[])
+    class FixedPortBus(DatagramCanBus):
+        def __init__(self, channel: str = "", **settings: object) -> None:
+            super().__init__(channel, **settings)
+            self.socket.close()
+            self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.socket.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.socket.bind(("127.0.0.1", port))
+            self.socket.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+            self.address = self.socket.getsockname()
 
-        def sample() -> None:
-            samples.append((time.process_time(), time.clock_gettime(player_clock), time.monotonic()))
+    samples: list[tuple[float, float]] = []  # process CPU, wall
+    original = socketcan.SocketcanBus
+    socketcan.SocketcanBus = FixedPortBus  # type: ignore[misc,assignment]  # the socketcan kind opens the stand-in
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            hub_datagrams(accel, Path(tmp) / "frames.npy")
+            config_path = Path(tmp) / "bogiemon.toml"
+            source = '[source]\nkind = "can"\ninterface = "socketcan"\nchannel = "can0"\nlayout = "hub"\n'
+            config_path.write_text(f'{source}{config_text}[state]\ndirectory = "{Path(tmp) / "state"}"\n')
+            configure_logging(stream=open(os.devnull, "w"))  # noqa: SIM115 - closed at exit
 
-        timers = [threading.Timer(START_UP_S + from_s, sample), threading.Timer(START_UP_S + from_s + seconds, sample)]
-        timers.append(threading.Timer(START_UP_S + from_s + seconds + 0.5, service.request_stop))
-        for timer in timers:
-            timer.name = "bench-timer"
-            timer.start()
-        try:
-            status = service.run()
-        finally:
+            def opened(config: BogiemonConfig) -> Source:
+                return duty_cycled(CanSource(CanBusPort("socketcan", "can0"), layout, FS_HZ), config)
+
+            service = Service(config_path, opened, sinks=[])
+            sender: list[subprocess.Popen[bytes]] = []
+
+            def start_sender() -> None:
+                sender.append(subprocess.Popen([sys.executable, "-c", SENDER, str(Path(tmp) / "frames.npy"), str(port), str(FS_HZ)]))
+
+            def sample() -> None:
+                samples.append((time.process_time(), time.monotonic()))
+
+            timers = [threading.Timer(START_UP_S, start_sender), threading.Timer(START_UP_S + from_s, sample),
+                      threading.Timer(START_UP_S + from_s + seconds, sample),
+                      threading.Timer(START_UP_S + from_s + seconds + 0.5, service.request_stop)]  # fmt: skip
             for timer in timers:
-                timer.cancel()
+                timer.name = "bench-timer"
+                timer.start()
+            try:
+                status = service.run()
+            finally:
+                for timer in timers:
+                    timer.cancel()
+                for process in sender:
+                    process.kill()
+                    process.wait()
+    finally:
+        socketcan.SocketcanBus = original  # type: ignore[misc]
     if status != 0 or len(samples) != 2:
         raise BenchError(f"the service exited with status {status} after {len(samples)} of 2 samples")
-    (cpu0, player0, wall0), (cpu1, player1, wall1) = samples
-    return (cpu1 - cpu0 - (player1 - player0)) / (wall1 - wall0) * 3600.0
+    (cpu0, wall0), (cpu1, wall1) = samples
+    return (cpu1 - cpu0) / (wall1 - wall0) * 3600.0
 
 
 def day_figures(runs: int, seconds: float) -> list[Figure]:
@@ -172,7 +230,7 @@ def day_figures(runs: int, seconds: float) -> list[Figure]:
     day_cycled = [RUNNING_H * (share * r + (1 - share) * c) + STANDING_H * s for r, s, c in zip(running, standing, resting, strict=True)]
     extrapolated = f"extrapolated: {RUNNING_H:g} h x running + {STANDING_H:g} h x standing, from stretches of {seconds:g} s"
     return [
-        Figure.of("gateway_running_cpu_s_per_h", "running, measured whole (hub CAN at 500 Hz, virtual bus)", "CPU s/h",
+        Figure.of("gateway_running_cpu_s_per_h", "running, measured whole (hub CAN at 500 Hz, recvmmsg on a datagram socket)", "CPU s/h",
                   running, COMMAND, higher_is_better=False),
         Figure.of("gateway_standing_cpu_s_per_h", "standing, [duty] on: the source at rest, a 2 s listen a minute", "CPU s/h",
                   standing, COMMAND, higher_is_better=False, target=TARGET_STANDING_CPU_S_PER_H),

@@ -22,6 +22,9 @@ from bogiemon.drivers.base import EndOfStream, Source
 from bogiemon.drivers.recording import RecordingError
 
 READ_TIMEOUT_S = 0.5
+# A source at rest (a duty cycle) is asked less often: its thread wakes every 2 s instead of twice
+# a second, a standing wagon's daemon being mostly such wake-ups; a stop waits for it at most that.
+REST_READ_TIMEOUT_S = 2.0
 PR_SET_NAME = 15  # linux/prctl.h
 
 
@@ -110,7 +113,7 @@ class Pipeline:
         try:
             while not self._stop.is_set():
                 try:
-                    block = self.source.read(READ_TIMEOUT_S)
+                    block = self.source.read(REST_READ_TIMEOUT_S if self.source.resting else READ_TIMEOUT_S)
                 except EndOfStream:
                     break
                 except RecordingError as exc:
@@ -139,7 +142,8 @@ class Pipeline:
         try:
             while True:
                 try:
-                    block = self.ring.get(timeout_s=READ_TIMEOUT_S)
+                    # No timeout: a block or the ring's closing wakes it, nothing else needs it.
+                    block = self.ring.get(timeout_s=None)
                 except RingClosed:
                     break
                 if block is None:
