@@ -65,8 +65,17 @@ class Event:
     indicators: Mapping[str, float] = field(default_factory=dict)
     details: Mapping[str, Any] = field(default_factory=dict)
     event_id: str = field(default_factory=lambda: uuid.uuid4().hex)
+    # The bogie it is about, on a wagon judged on both (judgement/wagon.py): its id, "1" or "2";
+    # None on a one-bogie gateway, whose records stay as they were.
+    bogie: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
+        out = self._as_dict()
+        if self.bogie is not None:
+            out["bogie"] = self.bogie
+        return out
+
+    def _as_dict(self) -> dict[str, Any]:
         return {
             "event_id": self.event_id,
             "time_s": self.time_s,
@@ -87,4 +96,5 @@ class Event:
             indicators=dict(data.get("indicators", {})),
             details=dict(data.get("details", {})),
             event_id=str(data["event_id"]),
+            bogie=None if data.get("bogie") is None else str(data["bogie"]),
         )
