@@ -357,3 +357,43 @@ def one_bogie_guard(couplings: ArrayLike, center: NDArray[np.float64], covarianc
     sister model's population_guard_margin_sd, fitted on the training fleets)."""
     distance = population_distance_sd(couplings, center, covariance)
     return GuardVerdict(distance > margin_sd, distance, margin_sd, int(np.asarray(couplings).shape[0]))
+
+
+def judgeable_couplings(windows: Sequence[WindowIndicators], geometry: BogieGeometry, health: HealthSettings) -> NDArray[np.float64]:
+    """(n, 10) the coupling vectors of a bogie's judgeable windows (no gate, no sensor problem,
+    every coupling finite): what a commissioning's guard averages."""
+    rows = []
+    for w in windows:
+        if w.spectra is None or not assess_window(w, health, geometry=geometry).judgeable:
+            continue
+        x = WindowFeatures(w.spectra, geometry).coupling
+        if bool(np.all(np.isfinite(x))):
+            rows.append(x)
+    return np.array(rows) if rows else np.empty((0, len(COUPLING_NAMES)))
+
+
+def guard_wagon(
+    windows_1: Sequence[WindowIndicators], windows_2: Sequence[WindowIndicators], geometry: BogieGeometry, health: HealthSettings,
+    prior: SisterPrior, population_center: NDArray[np.float64], population_covariance: NDArray[np.float64],
+) -> GuardVerdict:
+    """The guard of a two-bogie commissioning of one load, from its windows as recorded (the
+    calibrate command's call): the sister guard's verdict, the bogie named by each bogie's own
+    distance from the fused model's population (its center and window covariance)."""
+    rows = pair_differences(windows_1, windows_2, geometry, prior.features, health)
+    if len(rows) < 2:
+        raise ValueError("the guard needs at least 2 judgeable window pairs")
+    own = [judgeable_couplings(w, geometry, health) for w in (windows_1, windows_2)]
+    distances = tuple(population_distance_sd(x, population_center, population_covariance) if len(x) else 0.0 for x in own)
+    return commissioning_guard(rows, prior, (distances[0], distances[1]))
+
+
+def guard_bogie(
+    windows: Sequence[WindowIndicators], geometry: BogieGeometry, health: HealthSettings, prior: SisterPrior,
+    population_center: NDArray[np.float64], population_covariance: NDArray[np.float64],
+) -> GuardVerdict:
+    """The guard of a one-bogie commissioning of one load, from its windows as recorded: its mean
+    couplings against the fused model's population, the margin the sister prior states."""
+    rows = judgeable_couplings(windows, geometry, health)
+    if len(rows) < 2:
+        raise ValueError("the guard needs at least 2 judgeable windows")
+    return one_bogie_guard(rows, population_center, population_covariance, prior.population_guard_margin_sd)

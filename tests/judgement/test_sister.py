@@ -13,7 +13,7 @@ from bogiemon.judgement.models import ModelError
 from bogiemon.judgement.rules import Level
 from bogiemon.judgement.settings import HealthSettings
 from bogiemon.judgement.sister import (
-    SISTER_SCORE, SisterPrior, attribute, commissioning_guard, feature_vector, learn_baseline, mean_distance_sd,
+    SISTER_SCORE, SisterPrior, attribute, commissioning_guard, feature_vector, guard_bogie, guard_wagon, learn_baseline, mean_distance_sd,
     one_bogie_guard, pair_differences, parse_sister_model, sister_evidence,
 )  # fmt: skip
 from bogiemon.detection.features import COUPLING_NAMES, WindowFeatures
@@ -126,3 +126,20 @@ def test_a_commissioning_pair_counts_only_where_both_windows_are_judgeable() -> 
     twos[2] = type(quiet)(**{**vars(quiet), "rms_mps2": (0.01, 0.01, 0.01)})
     rows = pair_differences(ones, twos[:3] + [amplitudes(35.0, 2.0)], BogieGeometry(), NAMES, HealthSettings(structure_checks=False))  # type: ignore[arg-type]
     np.testing.assert_allclose(rows, [[math.log(2.0), 0.0]] * 2)  # the third gated, the fourth not aligned
+
+
+def test_the_calibrate_commands_guard_reads_the_windows_and_names_the_bogie_that_stands_out() -> None:
+    n = len(COUPLING_NAMES)
+    shifted = np.zeros(n)
+    shifted[COUPLING_NAMES.index("c_pr_4")] = 0.3
+
+    def windows(x: np.ndarray, i2: float) -> list:
+        return [type(w)(**{**vars(w), "i2": i2}) for w in (window(x, 10.0 * i) for i in range(24))]
+
+    health = HealthSettings(structure_checks=False)
+    prior = dataclasses.replace(_prior(), features=("log_i2", "c_pr_4"))
+    verdict = guard_wagon(windows(np.zeros(n), 1.0), windows(shifted, 2.0), BogieGeometry(), health, prior, np.zeros(n), np.eye(n) * 0.01)
+    expected = math.sqrt(math.log(2.0) ** 2 / (0.04 + 0.01 / 2.0) + 0.3**2 / (0.04 + 0.01 / 2.0))
+    assert verdict.distance_sd == pytest.approx(expected) and verdict.refused and (verdict.bogie, verdict.other) == (2, 1)
+    alone = guard_bogie(windows(shifted, 1.0), BogieGeometry(), health, prior, np.zeros(n), np.eye(n) * 0.01)
+    assert alone.distance_sd == pytest.approx(3.0) and not alone.refused  # the prior's one-bogie margin is 4
