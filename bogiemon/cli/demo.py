@@ -70,7 +70,7 @@ class LiveDisplay:
             if diagnosis is not None and diagnosis.corners:
                 line += f"; corner {diagnosis.corner} ({diagnosis.best_match})"
             elif diagnosis is not None:
-                # The signs do not single a corner out: say so, with what they lean to.
+                # The signs do not single a pair out: say so, and why (best_match names no pair then).
                 line += f"; corner unknown ({diagnosis.best_match or 'no evidence'})"
             self.events.append(line)
             self.out.write(f"  >>> {line}\n")

@@ -7,7 +7,10 @@ record of its kind (judgement/events.py) by `event_from_body`. Inside the proces
 never JSON.
 
 The details as written since bogiemon.event/2 (store schema 3): the k-of-n counts are objects,
-{"k": 3, "n": 5}. The reader also takes every shape an earlier version wrote, which a gateway may
+{"k": 3, "n": 5}; every event names its bogie at the top ("bogie": "1", the [[bogie]] id of the
+config), and a wagon judged on both bogies adds the pair's sister evidence to a SUSPECTED's or
+CONFIRMED's details ("sister"). A body without "bogie" (every one before) is bogie "1"'s: the one
+place that says so. The reader also takes every shape an earlier version wrote, which a gateway may
 still hold in its store or outbox and a back office in its files: the counts as text ("3 of 5"),
 a diagnosis naming one corner ("corner") rather than its list ("corners"), and the fields added
 over time missing (the record says None). A body outside these shapes is an EventJsonError of one
@@ -26,6 +29,7 @@ from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 from bogiemon.judgement.events import (
+    DEFAULT_BOGIE,
     ClearedDetails,
     ConfirmedDetails,
     DecisionDetails,
@@ -40,6 +44,7 @@ from bogiemon.judgement.events import (
     SensorClearedDetails,
     SensorFaultDetails,
     Severity,
+    SisterDetails,
     SuspectedDetails,
     Trigger,
 )
@@ -49,6 +54,8 @@ if TYPE_CHECKING:
     from bogiemon.judgement.diagnosis import Diagnosis
     from bogiemon.judgement.rules import Threshold
 
+# A bogie's id as the config allows it (daemon/config_bogies.py): a topic level and a word of a line.
+_BOGIE_ID = re.compile(r"^[A-Za-z0-9._-]{1,16}$")
 _K_OF_N_TEXT = re.compile(r"^(\d{1,9}) of (\d{1,9})$")  # "3 of 5", as bodies before bogiemon.event/2 hold it
 W = TypeVar("W", bound=enum.Enum)
 D = TypeVar("D", SuspectedDetails, ConfirmedDetails, ClearedDetails)
@@ -68,6 +75,7 @@ def event_body(event: Event) -> dict[str, Any]:
         "config_hash": event.config_hash,
         "indicators": dict(event.indicators),
         "details": details_body(event.details),
+        "bogie": event.bogie,
     }
 
 
@@ -86,6 +94,7 @@ def event_from_body(data: Mapping[str, Any]) -> Event:
         indicators={str(name): _number(v, f"indicators: {name}") for name, v in indicators.items()},
         details=details_from_body(kind, body.field("details", lambda v, where: _object(v, where), {})),
         event_id=body.text("event_id"),
+        bogie=body.field("bogie", _bogie, DEFAULT_BOGIE),
     )
 
 
@@ -105,10 +114,12 @@ def details_body(details: EventDetails) -> dict[str, Any]:
         out |= _present(baseline=details.baseline, trend=details.trend)
         if isinstance(details, SuspectedDetails):
             out |= _present(warning_windows=_k_of_n_body(details.warning_windows))
+            out |= _present(sister=_sister_body(details.sister))
         elif isinstance(details, ConfirmedDetails):
             out |= _present(trigger=None if details.trigger is None else details.trigger.value)
             out["alarm_windows"] = _k_of_n_body(details.alarm_windows)
             out |= _present(diagnosis=None if details.diagnosis is None else _diagnosis_body(details.diagnosis))
+            out |= _present(sister=_sister_body(details.sister))
         else:
             out["cleared"] = details.cleared.value
         return out
@@ -138,11 +149,11 @@ def details_from_body(kind: EventKind, data: Mapping[str, Any]) -> EventDetails:
             )  # fmt: skip
 
         if kind is EventKind.SUSPECTED:
-            return decided(SuspectedDetails, warning_windows=d.field("warning_windows", _k_of_n, None))
+            return decided(SuspectedDetails, warning_windows=d.field("warning_windows", _k_of_n, None), sister=d.field("sister", _sister, None))
         if kind is EventKind.CONFIRMED:
             return decided(
                 ConfirmedDetails, alarm_windows=d.field("alarm_windows", _k_of_n), trigger=d.field("trigger", lambda v, where: _word(v, where, Trigger), None),
-                diagnosis=d.field("diagnosis", _diagnosis, None),
+                diagnosis=d.field("diagnosis", _diagnosis, None), sister=d.field("sister", _sister, None),
             )  # fmt: skip
         return decided(ClearedDetails, cleared=d.word("cleared", Mode))
     if kind is EventKind.SENSOR_FAULT:
@@ -174,6 +185,12 @@ def _diagnosis_body(d: Diagnosis) -> dict[str, Any]:
         "corner": d.corner, "corners": [c.value for c in d.corners], "kind": d.kind, "corner_confidence": d.corner_confidence,
         "kind_confidence": d.kind_confidence, "best_match": d.best_match, "cosine": d.cosine, "windows": d.windows,
     }  # fmt: skip
+
+
+def _sister_body(s: SisterDetails | None) -> dict[str, Any] | None:
+    if s is None:
+        return None
+    return {"score": s.score, "warning": s.warning, "alarm": s.alarm, "baseline": s.baseline, "blamed": s.blamed, "own_scores": list(s.own_scores)}
 
 
 def _problems_body(problems: Problems) -> dict[str, list[str]]:
@@ -318,6 +335,28 @@ def _diagnosis(value: Any, where: str) -> Diagnosis:
         corners=corners, kind=d.text("kind"), corner_confidence=d.number("corner_confidence"), kind_confidence=d.number("kind_confidence"),
         best_match=d.text("best_match"), cosine=d.number("cosine"), windows=d.field("windows", _integer),
     )  # fmt: skip
+
+
+def _sister(value: Any, where: str) -> SisterDetails:
+    d = _Reader(_object(value, where), f"{where}: ")
+    own = d.field("own_scores", _numbers)
+    if len(own) != 2:
+        _fail(f"{where}: own_scores", "expected two numbers, one per bogie")
+    blamed = d.field("blamed", _integer, None)
+    if blamed not in (None, 1, 2):
+        _fail(f"{where}: blamed", "expected 1, 2 or null")
+    return SisterDetails(
+        score=d.number("score"), warning=d.number("warning"), alarm=d.number("alarm"), baseline=d.text("baseline"), blamed=blamed,
+        own_scores=(own[0], own[1]),
+    )  # fmt: skip
+
+
+def _bogie(value: Any, where: str) -> str:
+    """A bogie's id: a short name, as [[bogie]] id in the config allows."""
+    text = _text(value, where)
+    if not _BOGIE_ID.match(text):
+        _fail(where, "expected a bogie id: 1 to 16 letters, digits, '.', '_' or '-'")
+    return text
 
 
 def _names(value: Any, where: str) -> list[str]:

@@ -29,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, StringConstraints, TypeAdapte
 from pydantic_core import PydanticCustomError, PydanticSerializationError
 
 from bogiemon.daemon.event_json import EventJsonError, details_from_body, event_body
-from bogiemon.judgement.events import Event, EventDetails, EventKind, Severity
+from bogiemon.judgement.events import DEFAULT_BOGIE, Event, EventDetails, EventKind, Severity
 from bogiemon.judgement.vocabulary import Mode
 
 EVENT_SCHEMA: Final = "bogiemon.event/2"
@@ -124,6 +124,9 @@ class EventMessage(_Message):
     config_hash: Annotated[str, StringConstraints(max_length=128)]
     indicators: Indicators  # the values that fired (null: not finite)
     details: Annotated[dict[Annotated[str, StringConstraints(max_length=64)], Any], Field(max_length=MAX_ENTRIES)]
+    # The bogie the event is about ([[bogie]] id; "1" on a one-bogie gateway). Absent from the
+    # messages of gateways before two bogies: bogie "1"'s, as daemon/event_json.py reads a body.
+    bogie: Annotated[str, StringConstraints(pattern=NAME, max_length=16)] = DEFAULT_BOGIE
 
     @field_validator("details")
     @classmethod
@@ -157,7 +160,8 @@ class EventMessage(_Message):
     def to_event(self) -> Event:
         indicators = {name: float("nan") if v is None else v for name, v in self.indicators.items()}
         return Event(
-            self.time_s, self.kind, self.severity, self.config_hash, indicators, details=self.details_record(), event_id=self.event_id
+            self.time_s, self.kind, self.severity, self.config_hash, indicators, details=self.details_record(), event_id=self.event_id,
+            bogie=self.bogie,
         )
 
 

@@ -116,6 +116,18 @@ class Judgement:
         """The worst level of the window's own values (not the trend's)."""
         return max(self.levels.values(), default=Level.OK)
 
+    def with_values(self, extra: Mapping[str, tuple[float, Threshold]]) -> Judgement:
+        """The judgement with more judged values (name -> (value, its limit)), e.g. the sister's
+        evidence (judgement/sister.py): their levels count as the window's own do."""
+        values, levels, limits = dict(self.values), dict(self.levels), dict(self.limits)
+        ratios = [self.alarm_ratio] if math.isfinite(self.alarm_ratio) else []
+        for name, (value, limit) in extra.items():
+            values[name], limits[name] = value, limit
+            levels[name] = limit.level(value) if math.isfinite(value) else Level.OK
+            ratios += [abs(value - limit.center) / limit.alarm] if math.isfinite(value) else []
+        ratio = max(ratios, default=math.nan)
+        return dataclasses.replace(self, values=values, levels=levels, limits=limits, alarm_ratio=ratio)
+
     def at_or_above(self, level: Level) -> dict[str, float]:
         return {name: self.values[name] for name, lv in self.levels.items() if lv >= level}
 
@@ -234,14 +246,17 @@ class Decider:
 
     def update(
         self, window: WindowIndicators, load: LoadState, context: RunningContext | None = None, features: WindowFeatures | None = None,
-        level_margin: float = 1.0,
+        level_margin: float = 1.0, extra: Mapping[str, tuple[float, Threshold]] | None = None,
     ) -> tuple[Judgement, list[Event]]:  # fmt: skip
         """Advance the state machine with one judgeable window; return its judgement and events.
 
         context: how the load state was decided, for the events (judgement/running.py); level_margin:
-        see judge.
+        see judge; extra: more judged values with their limits (Judgement.with_values), which
+        count towards the same k-of-n confirmation as the window's own.
         """
         judgement = self._with_trend(self.judge(window, load, features, level_margin), load)
+        if extra:
+            judgement = judgement.with_values(extra)
         s, cfg = self.state, self.settings
         alarm = judgement.worst >= Level.ALARM
         s.recent_alarms.append(alarm)

@@ -124,7 +124,9 @@ class Diagnosis:
         unknown corner, that of the likeliest pair (bands that disagree can leave it high).
     kind_confidence: 0.0 (no kind is told).
     best_match: the statistic in words, e.g. "pitch-roll +4.1, bounce-roll +3.2 sd at 4-8 Hz:
-        leading-left or trailing-right (leading-left if softer)" ("" without evidence).
+        leading-left or trailing-right (leading-left if softer)"; for an unknown corner why no pair
+        is named, and never a pair ("pitch-roll -0.2, bounce-roll +1.1 sd at 4-8 Hz: the pitch-roll
+        sign is within the noise (under 2.5 sd), no pair named"); "" without evidence.
     cosine: the agreement of the read bands with the likeliest corner's sign pattern: the cosine
         between the bands' standard scores and those signs, 1 when every band has the predicted
         sign, below 0 when most disagree.
@@ -219,10 +221,14 @@ def judge_signs(evidence: SignEvidence, windows: int) -> Diagnosis:
     clear = abs(t_pr) >= MIN_SCORE and bool(np.all(pr_against > -CONTRADICTION))
     pair = (likeliest, diagonal_of(likeliest))
     bands = ", ".join(band_label(b).removesuffix(" Hz") for b in evidence.bands)
-    described = (
-        f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz: "
-        f"{pair[0].value} or {pair[1].value} ({likeliest.value} if softer)"
-    )
+    read = f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz"
+    if clear:
+        described = f"{read}: {pair[0].value} or {pair[1].value} ({likeliest.value} if softer)"
+    elif not bool(np.all(pr_against > -CONTRADICTION)):
+        # An unknown corner names no pair: a sign read within the noise would point at one.
+        described = f"{read}: a band contradicts the pitch-roll sign, no pair named"
+    else:
+        described = f"{read}: the pitch-roll sign is within the noise (under {MIN_SCORE:g} sd), no pair named"
     return Diagnosis(
         corners=pair if clear else (),
         kind=UNKNOWN,

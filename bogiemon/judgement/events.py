@@ -23,6 +23,9 @@ if TYPE_CHECKING:
     from bogiemon.judgement.rules import Threshold
 
 
+# The bogie a one-bogie gateway monitors, and the one an event without a bogie is about.
+DEFAULT_BOGIE = "1"
+
 # The paper's indicators as the events, the thresholds and the status name them (detection's
 # WindowIndicators fields of the same names).
 INDICATOR_FIELDS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
@@ -120,10 +123,26 @@ class DecisionDetails(WindowDetails):
     trend: float | None = None  # the fused trend after the window (None: no trend)
 
 
+@dataclass(frozen=True)
+class SisterDetails:
+    """The sister evidence of the window pair that moved a wagon's decision (judgement/sister.py):
+    the score of the difference between the bogies against its healthy baseline, that baseline's
+    levels and name ("commissioned" or "prior"), the bogie of the pair it named (1: the first, 2:
+    the second; None: neither clearly) and each bogie's own coupling score that named it."""
+
+    score: float
+    warning: float
+    alarm: float
+    baseline: str
+    blamed: int | None
+    own_scores: tuple[float, float]
+
+
 @dataclass(frozen=True, kw_only=True)
 class SuspectedDetails(DecisionDetails):
     KIND: ClassVar[EventKind] = EventKind.SUSPECTED
     warning_windows: KOfN | None = None  # of the last judged windows, those at a warning level or above
+    sister: SisterDetails | None = None  # a wagon judged on both bogies: the pair's sister evidence
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -132,6 +151,7 @@ class ConfirmedDetails(DecisionDetails):
     alarm_windows: KOfN  # of the last judged windows, those at an alarm level
     trigger: Trigger | None = None
     diagnosis: Diagnosis | None = None  # the corner the couplings name (judgement/diagnosis.py)
+    sister: SisterDetails | None = None  # a wagon judged on both bogies: the pair's sister evidence
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -199,6 +219,10 @@ class Event:
     indicators: Mapping[str, float] = field(default_factory=dict)
     details: EventDetails = field(kw_only=True)
     event_id: str = field(default_factory=lambda: uuid.uuid4().hex)
+    # The bogie it is about: its id ([[bogie]] id in the config, "1" and "2" by default). A
+    # one-bogie gateway's events are bogie "1"'s, and so is every event written before the wagon
+    # had two (a body without "bogie" reads as "1": daemon/event_json.py).
+    bogie: str = field(default=DEFAULT_BOGIE, kw_only=True)
 
     def __post_init__(self) -> None:
         if type(self.details) is not DETAILS_TYPES[self.kind]:

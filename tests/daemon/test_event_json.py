@@ -3,6 +3,7 @@ earlier version wrote (its store's rows, its messages) reads into today's typed 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sqlite3
 from pathlib import Path
@@ -25,6 +26,7 @@ from bogiemon.judgement.events import (
     RunningContext,
     SensorClearedDetails,
     SensorFaultDetails,
+    SisterDetails,
     SuspectedDetails,
     Trigger,
 )
@@ -172,3 +174,39 @@ def test_details_that_are_not_a_record_of_their_kind_are_refused_in_one_line_nam
     with pytest.raises(SchemaError) as refused:
         decode(EventMessage, json.dumps(payload).encode())
     assert str(refused.value) == error
+
+
+def test_an_event_names_its_bogie_at_the_top_and_one_without_is_bogie_1s() -> None:
+    event = dataclasses.replace(event_of(EventKind.CONFIRMED, 1.7e9), bogie="2")
+    body = event_body(event)
+    assert body["bogie"] == "2"
+    assert event_from_body(json.loads(json.dumps(body))) == event
+    assert decode(EventMessage, encode_event("W1", 1, event).encode()).to_event().bogie == "2"
+    assert event_body(event_of(EventKind.CONFIRMED, 1.7e9))["bogie"] == "1"  # a one-bogie gateway's
+    earlier = {k: v for k, v in body.items() if k != "bogie"}
+    assert event_from_body(earlier).bogie == "1"
+    assert decode(EventMessage, json.dumps({"schema": "bogiemon.event/2", "wagon_id": "W1", "seq": 1, **earlier}).encode()).to_event().bogie == "1"
+
+
+def test_a_bogie_that_is_no_short_name_is_refused_in_one_line() -> None:
+    body = {**event_body(event_of(EventKind.CLEARED, 1.7e9)), "bogie": "bogie two"}
+    with pytest.raises(EventJsonError, match="^bogie: expected a bogie id"):
+        event_from_body(body)
+    with pytest.raises(SchemaError, match="bogie"):
+        decode(EventMessage, json.dumps({"schema": "bogiemon.event/2", "wagon_id": "W1", "seq": 1, **body}).encode())
+
+
+@pytest.mark.parametrize("kind", [EventKind.SUSPECTED, EventKind.CONFIRMED])
+def test_the_sister_evidence_of_a_wagon_reads_back_as_its_record(kind: EventKind) -> None:
+    sister = SisterDetails(score=41.5, warning=12.0, alarm=20.0, baseline="commissioned", blamed=2, own_scores=(3.25, 17.5))
+    event = dataclasses.replace(event_of(kind, 1.7e9), bogie="2")
+    details = event.details
+    assert isinstance(details, SuspectedDetails | ConfirmedDetails)
+    event = dataclasses.replace(event, details=dataclasses.replace(details, sister=sister))
+    body = json.loads(json.dumps(event_body(event)))
+    assert body["details"]["sister"] == {"score": 41.5, "warning": 12.0, "alarm": 20.0, "baseline": "commissioned", "blamed": 2, "own_scores": [3.25, 17.5]}
+    assert event_from_body(body) == event
+    assert decode(EventMessage, encode_event("W1", 1, event).encode()).to_event() == event
+    body["details"]["sister"]["own_scores"] = [1.0]
+    with pytest.raises(EventJsonError, match="^details: sister: own_scores: expected two numbers"):
+        event_from_body(body)

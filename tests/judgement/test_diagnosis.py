@@ -124,14 +124,16 @@ def test_bands_that_disagree_in_sign_give_unknown() -> None:
     healthy = healthy_covariance(b)
     d = judge_signs(sign_evidence(shift, healthy, healthy, (low, high)), 3)
     assert d.corner == UNKNOWN and d.corners == ()
-    assert d.best_match.endswith("(leading-left if softer)") and d.cosine < 1.0
+    assert d.best_match.endswith(": a band contradicts the pitch-roll sign, no pair named") and d.cosine < 1.0
+    assert not any(c.value in d.best_match for c in Corner)  # an unknown corner names no pair
 
 
 def test_a_shift_within_its_noise_gives_unknown() -> None:
     b = baseline()
     d = diagnose(windows_of(shift_of(Corner.TRAILING_RIGHT, "full", 1.5), b), b, "full")
     assert d.corner == UNKNOWN
-    assert d.best_match.endswith("(trailing-right if softer)")
+    assert d.best_match.endswith(": the pitch-roll sign is within the noise (under 2.5 sd), no pair named")
+    assert not any(c.value in d.best_match for c in Corner)  # an unknown corner names no pair
 
 
 def test_the_pair_needs_the_pitch_roll_sign_alone() -> None:

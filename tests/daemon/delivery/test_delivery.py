@@ -77,7 +77,7 @@ def test_the_mqtt_unit_is_bogiemon_service_plus_the_network_and_the_credentials(
 def test_docs_mqtt_md_documents_every_field_of_both_schemas() -> None:
     from bogiemon.daemon.messages import EventMessage, LatestWindow
     from bogiemon.judgement.diagnosis import Diagnosis
-    from bogiemon.judgement.events import DETAILS_TYPES, RunningContext
+    from bogiemon.judgement.events import DETAILS_TYPES, RunningContext, SisterDetails
 
     doc = (Path(__file__).resolve().parents[3] / "docs" / "mqtt.md").read_text()
     names = [f"`{field.alias or name}`" for model in (EventMessage, StatusMessage) for name, field in model.model_fields.items()]
@@ -85,6 +85,6 @@ def test_docs_mqtt_md_documents_every_field_of_both_schemas() -> None:
     names += [f"`outbox.{name}`" for name in OutboxStatus.model_fields]
     # The details of every kind: the records' fields are their JSON names (RunningContext's are
     # written beside the others, not under `running`).
-    names += [f"`{f.name}`" for record in (*DETAILS_TYPES.values(), RunningContext, Diagnosis) for f in dataclasses.fields(record) if f.name != "running"]
+    names += [f"`{f.name}`" for record in (*DETAILS_TYPES.values(), RunningContext, Diagnosis, SisterDetails) for f in dataclasses.fields(record) if f.name != "running"]
     assert [n for n in names if n not in doc] == []
     assert '"bogiemon.event/2"' in doc and '"bogiemon.event/1"' in doc and '"bogiemon.status/1"' in doc
