@@ -30,8 +30,13 @@ def test_the_default_plan_has_every_fault_case_on_either_bogie_and_held_out_wago
     assert {r.bogie for r in runs if r.role == "fault"} == {1, 2}
     training = {w.seed for w in plan.training_fleet()}
     assert training.isdisjoint(w.seed for w in plan.fleet())
-    shares = {r.leading_share for r in runs if r.role == "train-healthy" and r.load == "full"}
-    assert len(shares) > 1 and all(abs(s - 0.5) <= TRAINING_SHARE_SPREAD for s in shares)
+    shares: dict[int, list[float]] = {}
+    for r in runs:
+        if r.role == "train-healthy" and r.load == "full":
+            shares.setdefault(r.wagon, []).append(r.leading_share)
+    # Drawn per run: a training wagon's loading changes from one run to the next, within the spread.
+    assert all(len(set(s)) > 1 for s in shares.values())
+    assert all(abs(x - 0.5) <= TRAINING_SHARE_SPREAD for s in shares.values() for x in s)
     assert {r.leading_share for r in runs if r.role == "train-healthy" and r.load == "tare"} == {0.5}
 
 

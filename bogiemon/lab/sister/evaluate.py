@@ -10,7 +10,8 @@ estimated) through judgement/wagon.py's WagonJudge, as a gateway on a wagon woul
   (config/sister_model.toml, or the model given).
 Without the sister evidence the same judges run with no sister baselines: each bogie alone.
 A wagon's healthy runs of one load are judged in order as one stretch of running (the decision
-state carried over), each fault run alone after a healthy lead-in. The uneven wagons are judged
+state carried over), each fault run alone after a healthy lead-in, each run with a damaged
+sensor alone. The uneven wagons are judged
 as commissioned at 60/40 (their uneven calibration runs) and, "loading changed", commissioned on
 their even runs and then running 60/40.
 """
@@ -139,7 +140,8 @@ def evaluate_model(data: SisterData, config: BogiemonConfig, prior: SisterModel,
             for role in ("healthy", "uneven-healthy"):
                 stretches = [_in_order(data.select(role=role, wagon=w, load=load)) for load in data.plan.loads]
                 plan.append(("even" if c.mode == "commissioned" else "none", [s for s in stretches if s]))
-            plan.append(("even" if c.mode == "commissioned" else "none", [[r] for r in data.select(role="fault", wagon=w)]))
+            alone = data.select(role="fault", wagon=w) + data.select(role="sensor", wagon=w)
+            plan.append(("even" if c.mode == "commissioned" else "none", [[r] for r in alone]))
             uneven_faults = [[r] for r in data.select(role="uneven-fault", wagon=w)]
             if c.mode == "commissioned" and "uneven" in setups:
                 stretches = [_in_order(data.select(role="uneven-healthy", wagon=w, load=load)) for load in data.plan.loads]

@@ -17,9 +17,11 @@ channels are given back in the wagon's own order, bogie 1's first, each bogie re
 own sensors. So a bogie's number is the wagon's, never the direction's, as on a gateway.
 - train-healthy: training wagons, each load; their first `commissioning_runs` are what a
   commissioning of that wagon would hold (a random draw of what it ran, as a keeper commissions).
-  Loaded, each training wagon carries its load unevenly between its ends, bogie 1's share of the
-  carbody drawn uniformly within 0.5 +/- TRAINING_SHARE_SPREAD (a wagon's real imbalance, which a
-  prior fitted on these wagons must allow); empty, the carbody is its own, even.
+  Loaded, a training run carries its load unevenly between the wagon's ends, bogie 1's share of
+  the carbody drawn per run uniformly within 0.5 +/- TRAINING_SHARE_SPREAD: a wagon's loading
+  changes from trip to trip, and what the sister learns (a commissioning's spread, the prior's)
+  must allow it; empty, the carbody is its own, even. Many wagons with few runs each: the spread
+  between wagons (the prior's, the guard's) is what the fleet's size limits.
 - train-fault: every fault case of the paper's Tables 1 to 3, on either bogie, at two corners a
   cell (turning through the four), the fault present from the start: what a broken spring looks
   like to each feature, and to a commissioning that already holds it.
@@ -28,6 +30,9 @@ own sensors. So a bogie's number is the wagon's, never the direction's, as on a 
   either bogie; the other cases at one diagonal, leading-left and trailing-right).
 - uneven-*: the same for evaluation wagons whose carbody is loaded 60/40 between its ends
   (`leading_share`), commissioning, healthy running and broken springs.
+- sensor: evaluation wagons running healthy with one sensor of one bogie damaged
+  (lab/robust/fleet.py damage_sensors, on that bogie's three channels): the other bogie must
+  never be blamed.
 
 Simulating is the cost: runs of one length share a kernel call (simulate_batch's scenario axis),
 and each run's windows are kept in a file of its own under the cache folder, so a rerun (or a
@@ -47,7 +52,7 @@ from typing import Any
 import numpy as np
 
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, WindowIndicators
-from bogiemon.lab.robust.fleet import MIRROR, Conditions, RunSpec, draw_conditions, fault_cells
+from bogiemon.lab.robust.fleet import MIRROR, Conditions, RunSpec, damage_sensors, draw_conditions, fault_cells
 from bogiemon.lab.robust.report import FULL_SPRINGS, TARE_OUTER
 from bogiemon.lab.robust.wagons import Wagon, make_wagon
 from bogiemon.lab.study.plan import HEALTHY, table4_cases
@@ -60,6 +65,8 @@ BROKEN = tuple((key, 0.0) for key in (*FULL_SPRINGS, *TARE_OUTER))
 DIAGONAL = (Corner.LEADING_LEFT, Corner.TRAILING_RIGHT)
 UNEVEN_SHARE = 0.6  # of the carbody's weight on bogie 1: a wagon loaded 60/40 between its ends
 TRAINING_SHARE_SPREAD = 0.1
+# A sensor of one bogie (lab/robust/fleet.py SENSOR_DAMAGE), run healthy on each load.
+SENSOR_DAMAGES = ("dead a1", "noisy a3", "hiss a2", "swapped a1-a2")
 CACHE_VERSION = 1  # of a run's cached windows; a new one simulates again
 
 
@@ -79,12 +86,14 @@ class SisterRun:
     duration_s: float = 600.0
     onset_s: float = 0.0
     leading_share: float = 0.5  # of the carbody's weight on bogie 1
+    damage: str | None = None  # role "sensor": what is wrong with a sensor of bogie `bogie` (SENSOR_DAMAGES)
 
     @property
     def name(self) -> str:
         where = f"{self.bogie}:{self.corner.value}" if self.corner else "-"
         share = f"|share {self.leading_share:g}" if self.leading_share != 0.5 else ""
-        return f"sister|{self.role}|{self.wagon}|{self.load}|{self.key}|{self.severity:g}|{where}|{self.number}|{self.duration_s:g}|{self.onset_s:g}{share}"
+        damage = f"|{self.bogie}:{self.damage}" if self.damage else ""
+        return f"sister|{self.role}|{self.wagon}|{self.load}|{self.key}|{self.severity:g}|{where}|{self.number}|{self.duration_s:g}|{self.onset_s:g}{share}{damage}"
 
     @property
     def training(self) -> bool:
@@ -112,9 +121,9 @@ class SisterPlan:
 
     name: str
     model: str
-    n_training_wagons: int = 12
-    training_healthy_runs: int = 5  # per training wagon and load, 10 min each
-    commissioning_runs: int = 4  # of those, what a commissioning of the training wagon holds
+    n_training_wagons: int = 20
+    training_healthy_runs: int = 3  # per training wagon and load, 10 min each
+    commissioning_runs: int = 2  # of those, what a commissioning of the training wagon holds
     training_fault_corners: int = 2  # per fault cell and bogie (turning through the corners)
     training_fault_s: float = 600.0
     training_fault_cases: tuple[tuple[str, float], ...] | None = None  # None: every cell of Table 4
@@ -127,6 +136,7 @@ class SisterPlan:
     broken_cases: tuple[tuple[str, float], ...] = BROKEN  # at every corner of either bogie
     fault_cases: tuple[tuple[str, float], ...] | None = None  # the evaluation's other cells, at DIAGONAL; None: every cell
     uneven_wagons: int = 2  # evaluation wagons also run loaded UNEVEN_SHARE / rest
+    sensor_damages: tuple[str, ...] = SENSOR_DAMAGES
     fleet_seed: int = 2026
     loads: tuple[str, ...] = ("full", "tare")
 
@@ -141,13 +151,14 @@ class SisterPlan:
             name="quick", model=model, n_training_wagons=3, training_healthy_runs=2, commissioning_runs=1,
             training_fault_corners=1, training_fault_s=300.0, n_wagons=1, calibration_runs=2, healthy_runs=1, run_s=300.0,
             fault_s=300.0, broken_cases=(("type_a.full.rear_outer", 0.0),), fault_cases=(), training_fault_cases=(("type_a.full.rear_outer", 0.0),), uneven_wagons=1, loads=("full",),
+            sensor_damages=("dead a1",),
         )  # fmt: skip
 
-    def training_share(self, wagon: int, load: str) -> float:
-        """Bogie 1's share of the carbody of a training wagon (module docstring): drawn per wagon."""
+    def training_share(self, wagon: int, load: str, run: str) -> float:
+        """Bogie 1's share of the carbody in a training run (module docstring): drawn per run."""
         if load != "full":
             return 0.5
-        rng = np.random.default_rng(zlib.crc32(f"{self.fleet_seed}|sister-training-share|{wagon}".encode()))
+        rng = np.random.default_rng(zlib.crc32(f"{self.fleet_seed}|sister-training-share|{wagon}|{run}".encode()))
         return round(float(rng.uniform(0.5 - TRAINING_SHARE_SPREAD, 0.5 + TRAINING_SHARE_SPREAD)), 4)
 
     def training_fleet(self) -> tuple[Wagon, ...]:
@@ -168,8 +179,10 @@ class SisterPlan:
         out: list[SisterRun] = []
         for w in range(self.n_training_wagons):
             for load in self.loads:
-                share = self.training_share(w, load)
-                out += [SisterRun("train-healthy", w, load, number=r, duration_s=self.run_s, leading_share=share) for r in range(self.training_healthy_runs)]
+                out += [
+                    SisterRun("train-healthy", w, load, number=r, duration_s=self.run_s, leading_share=self.training_share(w, load, f"healthy {r}"))
+                    for r in range(self.training_healthy_runs)
+                ]
         turn = 0
         for key, severity in self._cells(self.training_fault_cases):
             load = key.split(".")[1]
@@ -178,7 +191,8 @@ class SisterPlan:
             for bogie in (1, 2):
                 for _ in range(self.training_fault_corners):
                     corner, w = CORNER_ORDER[turn % 4], turn % self.n_training_wagons
-                    out.append(SisterRun("train-fault", w, load, key, severity, corner, bogie, 0, self.training_fault_s, leading_share=self.training_share(w, load)))
+                    share = self.training_share(w, load, f"{key} {severity} {bogie} {corner.value}")
+                    out.append(SisterRun("train-fault", w, load, key, severity, corner, bogie, 0, self.training_fault_s, leading_share=share))
                     turn += 1
         for w in range(self.n_wagons):
             for load in self.loads:
@@ -193,6 +207,12 @@ class SisterPlan:
                 out += [SisterRun("uneven-calibration", w, load, number=r, duration_s=self.run_s, leading_share=UNEVEN_SHARE) for r in range(self.calibration_runs)]
                 out += [SisterRun("uneven-healthy", w, load, number=r, duration_s=self.run_s, leading_share=UNEVEN_SHARE) for r in range(self.healthy_runs)]
         out += self._fault_runs("uneven-fault", uneven, self.broken_cases, DIAGONAL, UNEVEN_SHARE)
+        turn = 0
+        for damage in self.sensor_damages:
+            for load in self.loads:
+                for bogie in (1, 2):
+                    out.append(SisterRun("sensor", turn % self.n_wagons, load, bogie=bogie, duration_s=self.run_s, damage=damage))
+                    turn += 1
         return tuple(out)
 
     def _fault_runs(self, role: str, wagons: Sequence[int], cells: Sequence[tuple[str, float]], corners: Sequence[Corner], share: float) -> list[SisterRun]:
@@ -347,7 +367,11 @@ def simulate_sister(
         built = [scenario_for(runs[i], fleets[runs[i].training][runs[i].wagon], settings.fs_hz, geometry) for i in batch]
         for i, (_, swapped), result in zip(batch, built, simulate_batch([s for s, _ in built]), strict=True):
             accel = result.accel_mps2
-            halves = (accel[:, 3:], accel[:, :3]) if swapped else (accel[:, :3], accel[:, 3:])
+            halves = [accel[:, 3:], accel[:, :3]] if swapped else [accel[:, :3], accel[:, 3:]]
+            damage = runs[i].damage
+            if damage is not None:
+                k = runs[i].bogie - 1
+                halves[k] = damage_sensors(halves[k], damage, settings.fs_hz, zlib.crc32(runs[i].name.encode()))
             one, two = (tuple(IndicatorStream(settings, geometry, clip_level_mps2=155.0).process(h)) for h in halves)
             found[i] = (one, two)
             if folder is not None:

@@ -13,7 +13,7 @@ import numpy as np
 from bogiemon.drivers.atomic import write_text_atomically
 from bogiemon.lab.sister.evaluate import Configuration
 from bogiemon.lab.sister.guard import Stretch
-from bogiemon.lab.sister.score import TARGETS, healthy, met, select
+from bogiemon.lab.sister.score import TARGETS, healthy, met, select, sensor_runs
 from bogiemon.detection.features import COUPLING_NAMES
 from bogiemon.lab.sister.study import GROUPS, FeatureRow, Step, rows_as_dicts
 
@@ -101,6 +101,14 @@ def uneven_lines(configurations: Sequence[Configuration]) -> list[str]:
     for label, setup in (("broken springs, commissioned at 60/40: confirmed on their bogie", "uneven"), ("broken springs, uncommissioned: confirmed on their bogie", "none")):
         cells = [confirmed(select(c, "uneven-fault", setup)).text() for c in configurations]
         out.append(f"| {label} | " + " | ".join(cells) + " |")
+    out += ["", "| a damaged sensor on one bogie | " + " | ".join(f"{c.mode}, {'sister' if c.sister else 'alone'}" for c in configurations) + " |"]
+    out.append("|---|" + "---|" * len(configurations))
+    found = [sensor_runs(select(c, "sensor")) for c in configurations]
+    for label, attr in (
+        ("runs with a suspension event on either bogie", "suspension"), ("of them on the healthy bogie", "other_bogie"),
+        ("the sensor fault reported on the damaged bogie", "reported"),
+    ):  # fmt: skip
+        out.append(f"| {label} | " + " | ".join(f"{getattr(f, attr)}/{f.runs}" for f in found) + " |")
     return out + [""]
 
 

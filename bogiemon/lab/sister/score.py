@@ -108,6 +108,28 @@ def select(c: Configuration, role: str, commissioning: str | None = None, cells:
 
 
 @dataclass(frozen=True)
+class SensorRuns:
+    """Runs with one sensor of one bogie damaged: how many; how many had a suspension event
+    (SUSPECTED or CONFIRMED) on either bogie, how many on the other, healthy bogie (the sister must
+    never blame it), and how many reported the sensor fault on the damaged bogie."""
+
+    runs: int
+    suspension: int
+    other_bogie: int
+    reported: int
+
+
+def sensor_runs(runs: Sequence[JudgedRun]) -> SensorRuns:
+    def damaged(r: JudgedRun) -> str:
+        return str(r.run.run.bogie)
+
+    suspension = [r for r in runs if any(e.kind in ("SUSPECTED", "CONFIRMED") for e in r.events)]
+    other = [r for r in runs if any(e.kind in ("SUSPECTED", "CONFIRMED") and e.bogie != damaged(r) for e in r.events)]
+    reported = [r for r in runs if any(e.kind == "SENSOR_FAULT" and e.bogie == damaged(r) for e in r.events)]
+    return SensorRuns(len(runs), len(suspension), len(other), len(reported))
+
+
+@dataclass(frozen=True)
 class Target:
     name: str
     goal: float
