@@ -1,4 +1,4 @@
-"""`bogiemon replay RECORDING... [--config F] [--load auto|full|tare] [--json] [--realtime]`."""
+"""`bogiemon replay RECORDING... [--config F] [--load auto|full|tare] [--json] [--realtime] [--duty]`."""
 
 from __future__ import annotations
 
@@ -24,6 +24,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--json", action="store_true", help="events as JSON lines")
     p.add_argument("--realtime", action="store_true", help="pace the recordings at real time instead of as fast as possible")
     p.add_argument("--state-dir", help="keep the event store here (default: a temporary one)")
+    p.add_argument("--duty", action="store_true",
+                   help="read the recordings on the config's [duty] cycle, as the daemon would on the wagon "
+                        "(its rests skip samples): what the duty cycle costs the detection")  # fmt: skip
     add_mapping_arguments(p)
     p.set_defaults(run=run)
 
@@ -32,12 +35,12 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.config import load_config
     from bogiemon.daemon.replay import replay
 
-    config = with_mapping(load_config(args.config), args)
     from bogiemon.drivers.recording import RecordingError
     from bogiemon.drivers.sniff import expand_folders
 
+    config = with_mapping(load_config(args.config), args)
     files = expand_folders(args.files, RecordingError)  # a folder: its recordings, in name order
-    summary = replay(files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
+    summary = replay(files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)], duty=args.duty)
     c = summary.counters
     print(
         f"replayed {summary.recordings} recording(s): {c.windows} windows, {c.judged} judged, {c.gated} gated, "
@@ -79,11 +82,12 @@ def clipped_text(path: str, clipped: int) -> str:
 
 def print_sink(as_json: bool) -> EventSink:
     """A sink that prints each committed event, as a line or as JSON."""
-    from bogiemon.judgement.events import Event
+    from bogiemon.daemon.event_json import event_body
     from bogiemon.daemon.sinks import EventSink
+    from bogiemon.judgement.events import Event
 
     class PrintSink(EventSink):
         def publish(self, event: Event) -> None:
-            print(json.dumps(event.as_dict()) if as_json else format_event(event), flush=True)
+            print(json.dumps(event_body(event)) if as_json else format_event(event), flush=True)
 
     return PrintSink()

@@ -1,4 +1,5 @@
-"""The source the config asks for: `open_source(config)` builds the driver from [source].
+"""The source the config asks for: `open_source(config)` builds the driver from [source];
+`open_service_source(config)` reads it on the [duty] cycle (daemon/duty.py), as `run` does.
 
 The drivers take plain arguments; this is the one place that reads their settings from the
 config tree (drivers/ never imports daemon/). Each [source] kind (a model of daemon/config.py)
@@ -136,3 +137,18 @@ def open_source(config: BogiemonConfig) -> Source:
     if opener is None:  # the config accepted a kind this table lacks: a bug, not a user error
         raise TypeError(f"[source] kind {getattr(src, 'kind', '?')!r} ({type(src).__name__}) has no opener in daemon/sources.py OPENERS")
     return opener(src, config)
+
+
+def duty_cycled(source: Source, config: BogiemonConfig) -> Source:
+    """source read on the config's [duty] cycle (daemon/duty.py); source itself when [duty] is off."""
+    settings = config.duty_settings()
+    if settings is None:
+        return source
+    from bogiemon.daemon.duty import DutySource  # only with a duty cycle
+
+    return DutySource(source, settings)
+
+
+def open_service_source(config: BogiemonConfig) -> Source:
+    """What `bogiemon run` reads: the configured source (open_source), on the [duty] cycle."""
+    return duty_cycled(open_source(config), config)

@@ -49,6 +49,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, NoReturn, overload
 
+from bogiemon.drivers.quoting import quoted
+
 GZIP_MAGIC = b"\x1f\x8b"
 # A compressed file may always decompress to this much, whatever its ratio: a small file of a
 # few constant rows compresses far better than a recording does.
@@ -86,12 +88,8 @@ class FileKind:
 
 
 def one_line(text: str | bytes, limit: int = 80) -> str:
-    """Text from a file as a message quotes it: on one line, control characters and terminal
-    escapes written as escapes (repr's), cut to `limit` characters."""
-    if isinstance(text, bytes):
-        text = text.decode("utf-8", errors="replace")
-    shown = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
-    return shown if len(shown) <= limit else shown[: limit - 3] + "..."
+    """Text from a file as a message quotes it (drivers/quoting.py), cut to 80 characters by default."""
+    return quoted(text, limit)
 
 
 def size_text(n_bytes: int) -> str:

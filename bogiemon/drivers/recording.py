@@ -71,6 +71,7 @@ from bogiemon.drivers.recording_format import (
     MAX_RECORDING_BYTES,
     MF4_MAGIC,
     MIN_ACCEL_MPS2,
+    NEEDS_PYARROW,
     PARQUET_MAGIC,
     PARQUET_SUFFIX,
     RECORDING_FILE,
@@ -78,15 +79,16 @@ from bogiemon.drivers.recording_format import (
     RecordingError,
     RecordingFormat,
     follows_gap,
+    parquet_available,
     is_sample_recording_name,
 )
 from bogiemon.drivers.recording_parquet import MAX_PARQUET_GROUP_ROWS, PARQUET_GROUP_ROWS, ParquetRecordingReader, write_parquet_recording
 
 __all__ = [
     "ACCEL_LSB_MPS2", "COLUMNS", "GZIP_LEVEL", "HEADER", "MAX_ACCEL_MPS2", "MAX_INFLATE_RATIO", "MAX_LINE_BYTES",
-    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC", "PARQUET_SUFFIX",
+    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "NEEDS_PYARROW", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC", "PARQUET_SUFFIX",
     "RECORDING_FILE", "REFERENCE_STEPS", "TIME_STEP_TOLERANCE", "Recording", "RecordingError", "RecordingFormat",
-    "RecordingReader", "follows_gap", "is_sample_recording_name", "open_recording_reader", "read_csv_recording", "read_recording",
+    "RecordingReader", "follows_gap", "is_sample_recording_name", "open_recording_reader", "parquet_available", "read_csv_recording", "read_recording",
     "write_csv_recording", "write_parquet_recording", "write_recording",
 ]  # fmt: skip
 
@@ -111,6 +113,8 @@ def open_recording_reader(path: str | Path | UntrustedFile, min_samples: int = 2
 
             reader = Mf4RecordingReader(f, columns)
         else:
+            if parquet and not parquet_available():
+                raise RecordingError(f"{f.path}: a Parquet recording {NEEDS_PYARROW}")
             reader = ParquetRecordingReader(f, columns) if parquet else CsvRecordingReader(f, columns)
         reader.open(min_samples)
     except BaseException:

@@ -8,7 +8,7 @@ import csv
 import gzip
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -17,9 +17,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.columns import ColumnMap
+from bogiemon.drivers.csv_rows import NUMBER, RowsError, parse_rows
 from bogiemon.drivers.files import UntrustedFile, size_text
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, arrow_columns, recording_rows
+from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, arrow_columns, parquet_available, recording_rows
 
 _ROW_FORMAT = "%.6f,%.6f,%.6f,%.6f\n"
 _WRITE_CHUNK_ROWS = 65536
@@ -29,7 +31,7 @@ GZIP_LEVEL = 6
 
 # A number as pyarrow's CSV reader takes it (spaces and tabs around it allowed): the slow path
 # that names a bad line must find the line pyarrow refused, not one Python's float() refuses.
-_NUMBER = re.compile(rb"[ \t]*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan(?:\([0-9A-Za-z_]*\))?|inf(?:inity)?)[ \t]*", re.I)
+_NUMBER = NUMBER  # numpy's parser (drivers/csv_rows.py) keeps to it too
 _NOT_BREAK = re.compile(rb"[^\r\n]+")
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 
@@ -83,6 +85,12 @@ class CsvRecordingReader(RecordingReader):
                 except ValueError as exc:
                     _drain(f)
                     self.error(f"line 1: {exc}")
+                if not parquet_available():  # numpy's parser reads bogiemon's own four columns only
+                    _drain(f)
+                    self.error(
+                        f"a CSV of other columns than {HEADER} is read with pyarrow, which this install leaves out: "
+                        "pip install 'bogiemon[recordings]', or convert it with bogiemon convert where pyarrow is installed"
+                    )
             survey = _survey(f, first_chunk[self._header_bytes :])
         self.n_samples = survey.rows
         first_s, last_s = _row_time(survey.first, self._layout), _row_time(survey.last, self._layout)
@@ -111,26 +119,7 @@ class CsvRecordingReader(RecordingReader):
         raise AssertionError(f"row {row} not found in {self.path}")  # pragma: no cover - rows come from the file
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-
-        # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
-        # nothing of pyarrow's left running when the reading stops at a bad row.
-        layout = self._layout
-        cells = [f"c{i}" for i in range(len(layout.names))]  # the header's own names may repeat
-        picked = [cells[i] for i in layout.picks]
-        read_options = pacsv.ReadOptions(column_names=cells, block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
-        parse_options = pacsv.ParseOptions(
-            delimiter=layout.delimiter.decode(), quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True
-        )
-        convert_options = pacsv.ConvertOptions(
-            include_columns=picked, column_types=dict.fromkeys(picked, pa.float64()), null_values=[], strings_can_be_null=False,
-            quoted_strings_can_be_null=False,
-        )  # fmt: skip
-        def parse(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-            for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
-                yield arrow_columns(batch)
-
+        parse, refused = _csv_parser(self._layout)
         number = 2  # the first line of the block
         with self.file.reopen() as f:
             _skip(f, self._header_bytes)
@@ -138,7 +127,7 @@ class CsvRecordingReader(RecordingReader):
                 for block in _line_blocks(f):
                     try:
                         yield from parse(block)
-                    except pa.ArrowInvalid as exc:
+                    except refused as exc:
                         if not block.strip(b"\r\n"):
                             continue  # blank lines alone: pyarrow calls that an empty file
                         # The rows before the bad line are used; then the error names it.
@@ -163,8 +152,48 @@ class CsvRecordingReader(RecordingReader):
             if found is None:
                 break
             start, number = found.end(), number + 1
-        cut = parse_error if len(parse_error) <= 200 else parse_error[:197] + "..."
-        return len(block), f"cannot parse the rows: {cut}"
+        return len(block), f"cannot parse the rows: {quoted(parse_error, 200)}"
+
+
+CsvParse = Callable[[bytes], Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]]
+
+
+def _csv_parser(layout: _Layout = _DEFAULT_LAYOUT) -> tuple[CsvParse, type[Exception]]:
+    """The parser of a block of whole lines of a layout, and what it raises for a line that is no
+    row: pyarrow's CSV reader where it is installed, else numpy's (drivers/csv_rows.py: the same
+    rows to the bits, the same lines refused; a gateway installs without pyarrow; bogiemon's own
+    four columns only, which the open checked)."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ModuleNotFoundError:
+
+        def parse_numpy(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+            rows = parse_rows(block)
+            if rows.shape[0]:
+                yield np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1:])
+
+        return parse_numpy, RowsError
+
+    # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
+    # nothing of pyarrow's left running when the reading stops at a bad row. Only the columns of
+    # the layout are converted, in its order (the time, then each channel).
+    cells = [f"c{i}" for i in range(len(layout.names))]  # the header's own names may repeat
+    picked = [cells[i] for i in layout.picks]
+    read_options = pacsv.ReadOptions(column_names=cells, block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
+    parse_options = pacsv.ParseOptions(
+        delimiter=layout.delimiter.decode(), quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True
+    )
+    convert_options = pacsv.ConvertOptions(
+        include_columns=picked, column_types=dict.fromkeys(picked, pa.float64()), null_values=[], strings_can_be_null=False,
+        quoted_strings_can_be_null=False,
+    )  # fmt: skip
+
+    def parse_arrow(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
+            yield arrow_columns(batch)
+
+    return parse_arrow, pa.ArrowInvalid
 
 
 def _mapped_layout(header: str, data: bytes, columns: ColumnMap) -> _Layout:
@@ -180,7 +209,7 @@ def _mapped_layout(header: str, data: bytes, columns: ColumnMap) -> _Layout:
     try:
         selected = columns.select(list(names))
     except ValueError as exc:
-        raise ValueError(f"expected the header '{HEADER}' or the columns of a mapping, found '{header[:60] or 'an empty line'}': {exc}") from None
+        raise ValueError(f"expected the header '{HEADER}' or the columns of a mapping, found '{quoted(header) or 'an empty line'}': {exc}") from None
     picks = tuple(names.index(name) for name in selected)
     return _Layout(delimiter.encode(), names, picks)
 
@@ -199,7 +228,7 @@ def _line_problem(line: bytes, layout: _Layout = _DEFAULT_LAYOUT) -> str | None:
         return f"expected {n} {separated}-separated values ({layout.text}), found {len(cells)}"
     for i in layout.picks:
         if not _NUMBER.fullmatch(cells[i]):
-            return f"{layout.names[i]} is not a number: '{cells[i].decode().strip()[:40]}'"
+            return f"{layout.names[i]} is not a number: '{quoted(cells[i].strip(), 40)}'"
     return None
 
 
@@ -308,20 +337,20 @@ def _drain(f: UntrustedFile) -> None:
 
 
 def write_csv_recording(
-    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False
+    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False, gzip_level: int = GZIP_LEVEL
 ) -> None:
     """Write a recording; times with microsecond resolution, accelerations with 6 decimals (1e-6 m/s^2).
 
-    A path ending in .gz is written gzip-compressed (no name and no time stamp in the gzip header:
-    the same samples give the same bytes). fsync: on the disk before this returns (a file about
-    to be renamed into place must be whole there first).
+    A path ending in .gz is written gzip-compressed at gzip_level (no name and no time stamp in the
+    gzip header: the same samples give the same bytes). fsync: on the disk before this returns (a
+    file about to be renamed into place must be whole there first).
     """
     path = Path(path)
     time_s, accel = recording_rows(time_s, accel_mps2)
     rows = np.column_stack([time_s, accel])
     with path.open("wb") as raw:
         if path.name.lower().endswith(".gz"):
-            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=GZIP_LEVEL, mtime=0) as packed:
+            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=gzip_level, mtime=0) as packed:
                 _write_rows(packed, rows)  # closing the gzip stream writes its trailer, and leaves `raw` open
         else:
             _write_rows(raw, rows)

@@ -14,8 +14,9 @@ from numpy.typing import NDArray
 from bogiemon.drivers.columns import ColumnMap
 from bogiemon.drivers.files import UntrustedFile
 from bogiemon.drivers.parquet_pages import ParquetBoundsError, check_pages, read_footer
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, RECORDING_FILE, arrow_columns, recording_rows, short_error
+from bogiemon.drivers.recording_format import COLUMNS, NEEDS_PYARROW, RECORDING_FILE, RecordingError, arrow_columns, parquet_available, recording_rows, short_error
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -74,13 +75,13 @@ class ParquetRecordingReader(RecordingReader):
         names = self._names = self._selected(schema.names)
         twice = [name for name in names if schema.names.count(name) != 1]  # nested or repeated names: no column
         if twice:
-            self.error(f"the column {twice[0]} is named {schema.names.count(twice[0])} times in its schema, or is no plain column; {RECORDING_FILE.description}")
+            self.error(f"the column {quoted(twice[0], 40)} is named {schema.names.count(twice[0])} times in its schema, or is no plain column; {RECORDING_FILE.description}")
         types = [schema.types[schema.names.index(name)] for name in names]
         if not all(pa.types.is_floating(t) or pa.types.is_integer(t) for t in types[1:]) or not (
             pa.types.is_floating(types[0]) or pa.types.is_integer(types[0]) or pa.types.is_timestamp(types[0])
         ):
-            found = ", ".join(f"{n} {t}" for n, t in zip(names, types, strict=True))
-            self.error(f"expected number columns (float, integer; the time also a timestamp) {', '.join(names)}, found {found}")
+            found = ", ".join(f"{quoted(n, 40)} {t}" for n, t in zip(names, types, strict=True))
+            self.error(f"expected number columns (float, integer; the time also a timestamp), found {found}")
         if pa.types.is_timestamp(types[0]):
             self._time_type = types[0]
         meta = pf.metadata
@@ -122,7 +123,7 @@ class ParquetRecordingReader(RecordingReader):
         try:
             return self.columns.select(names)
         except ValueError as exc:
-            self.error(f"expected the columns time_s, a1, a2, a3 or those of a mapping, found {', '.join(names[:8]) or 'none'}: {exc}")
+            self.error(f"expected the columns time_s, a1, a2, a3 or those of a mapping, found {', '.join(quoted(n, 40) for n in names[:8]) or 'none'}: {exc}")
 
     def _seconds(self, column: pa.ChunkedArray) -> pa.ChunkedArray:
         """A time column as float64 in its own unit (a timestamp: seconds from the Unix epoch)."""
@@ -171,6 +172,8 @@ def write_parquet_recording(
     bytes repeat); both then zstd. The same samples give the same bytes (with the same pyarrow).
     fsync: on the disk before this returns.
     """
+    if not parquet_available():
+        raise RecordingError(f"{path}: writing a Parquet recording {NEEDS_PYARROW}")
     import pyarrow as pa
     import pyarrow.parquet as pq
 

@@ -27,7 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from bogiemon.judgement.decision import FUSED_TREND
-from bogiemon.judgement.events import Event, EventKind
+from bogiemon.judgement.events import ConfirmedDetails, Event
 from bogiemon.daemon.messages import encode_event
 from bogiemon.judgement.models import finite_or_none
 from bogiemon.judgement.verdict import Outcome, WindowJudge, WindowVerdict
@@ -291,11 +291,13 @@ STANDS_OUT_ATTENTION = 200.0
 def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) -> dict[str, Any]:
     state = state_of(j)
     last_seq, last = j.events[-1] if j.events else (0, None)
-    confirmed = [e for _, e in j.events if e.kind is EventKind.CONFIRMED]
+    confirmed = [e.details for _, e in j.events if isinstance(e.details, ConfirmedDetails)]
     diagnosis = None
-    if state is WagonState.CONFIRMED and confirmed:
-        d = confirmed[-1].details.get("diagnosis") or {}
-        diagnosis = {k: d.get(k) for k in ("corner", "corners", "kind", "corner_confidence", "kind_confidence")}
+    if state is WagonState.CONFIRMED and confirmed and (d := confirmed[-1].diagnosis) is not None:
+        diagnosis = {
+            "corner": d.corner, "corners": [c.value for c in d.corners], "kind": d.kind, "corner_confidence": d.corner_confidence,
+            "kind_confidence": d.kind_confidence,
+        }  # fmt: skip
     trend_ratio = (j.trend / j.trend_alarm) if j.trend is not None and j.trend_alarm else 0.0
     # Within a state: the trend's share of its alarm level orders the wagons (0..100).
     attention = ATTENTION[state] + min(max(trend_ratio, 0.0), 1.0) * 100.0

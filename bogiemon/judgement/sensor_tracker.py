@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import Event, EventDetails, Problems, SensorClearedDetails, SensorFaultDetails
 from bogiemon.judgement.health import WindowHealth
 from bogiemon.detection import WindowIndicators
 
@@ -50,20 +50,28 @@ class HealthTracker:
     def update(self, window: WindowIndicators, health: WindowHealth) -> list[Event]:
         s = self.state
         current = {ch: sorted(p.value for p in problems) for ch, problems in health.problems.items()}
-        details = {"window_start_s": window.start_s, "window_end_s": window.end_s, "rms_mps2": list(window.rms_mps2)}
         if current:
             s.clean_windows = 0
             grown = {ch: sorted(set(s.reported.get(ch, [])) | set(ps)) for ch, ps in {**s.reported, **current}.items()}
             if grown != s.reported:
                 s.reported = grown
-                return [self._event(window, EventKind.SENSOR_FAULT, {**details, "problems": current, "reported": grown})]
+                found = SensorFaultDetails(
+                    window_start_s=window.start_s, window_end_s=window.end_s, rms_mps2=tuple(window.rms_mps2), problems=_stated(current),
+                    reported=_stated(grown),
+                )  # fmt: skip
+                return [self._event(window, found)]
             return []
         if s.reported and health.gate is None:
             s.clean_windows += 1
             if s.clean_windows >= self.clear_after_windows:
                 previous, s.reported, s.clean_windows = s.reported, {}, 0
-                return [self._event(window, EventKind.SENSOR_CLEARED, {**details, "cleared": previous})]
+                cleared = SensorClearedDetails(window_start_s=window.start_s, window_end_s=window.end_s, rms_mps2=tuple(window.rms_mps2), cleared=_stated(previous))
+                return [self._event(window, cleared)]
         return []
 
-    def _event(self, window: WindowIndicators, kind: EventKind, details: dict[str, object]) -> Event:
-        return Event(time_s=window.end_s, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash=self.config_hash, details=details)
+    def _event(self, window: WindowIndicators, details: EventDetails) -> Event:
+        return Event.of(window.end_s, details, self.config_hash)
+
+
+def _stated(problems: dict[str, list[str]]) -> Problems:
+    return {ch: tuple(names) for ch, names in problems.items()}

@@ -13,14 +13,26 @@ import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from bogiemon.daemon.messages import encode_event
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import (
+    DEFAULT_SEVERITY,
+    ClearedDetails,
+    ConfirmedDetails,
+    Event,
+    EventDetails,
+    KOfN,
+    SensorFaultDetails,
+    SuspectedDetails,
+    Trigger,
+)
+from bogiemon.judgement.rules import Threshold
+from bogiemon.judgement.vocabulary import LoadState, Method, Mode
 
 HOP_S = 10.0  # the daemon's default hop between windows
 FIRST_DAY = "2026-11-30"
@@ -115,7 +127,9 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                 judged = not gate and not faulty
                 if faulty and not wagon.reported_fault:
                     wagon.reported_fault = True
-                    wagon.events.append(_event(time_s, EventKind.SENSOR_FAULT, rng, details={"problems": {"a3": ["noisy"]}, "reported": {"a3": ["noisy"]}}))
+                    noisy = {"a3": ("noisy",)}
+                    found = SensorFaultDetails(window_start_s=time_s - 120.0, window_end_s=time_s, rms_mps2=(0.9, 1.1, 1.4), problems=noisy, reported=noisy)
+                    wagon.events.append(_event(time_s, found, rng))
                 score = float(scores[i])
                 if judged:
                     trend = 0.98 * trend + 0.02 * score / 8.0
@@ -126,13 +140,14 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                     clean = clean + 1 if score <= lv["warning"] else 0
                     if mode != "CONFIRMED" and over_alarm >= CONFIRM_AFTER:
                         mode = "CONFIRMED"
-                        wagon.events.append(_event(time_s, EventKind.CONFIRMED, rng, {"fused_score": score}))
+                        confirmed = ConfirmedDetails(**_decided(time_s, load), alarm_windows=KOfN(CONFIRM_AFTER, CONFIRM_AFTER), trigger=Trigger.WINDOWS)
+                        wagon.events.append(_event(time_s, confirmed, rng, {"fused_score": score}))
                     elif mode == "NORMAL" and score > lv["warning"]:
                         mode = "SUSPECTED"
-                        wagon.events.append(_event(time_s, EventKind.SUSPECTED, rng, {"fused_score": score}))
+                        wagon.events.append(_event(time_s, SuspectedDetails(**_decided(time_s, load)), rng, {"fused_score": score}))
                     elif mode == "SUSPECTED" and clean >= CLEAR_AFTER:
                         mode = "NORMAL"
-                        wagon.events.append(_event(time_s, EventKind.CLEARED, rng, {}))
+                        wagon.events.append(_event(time_s, ClearedDetails(**_decided(time_s, load), cleared=Mode.SUSPECTED), rng))
                 nan = float("nan")
                 cols["time_s"].append(time_s)
                 cols["judged"].append(judged)
@@ -148,14 +163,29 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
     return wagon
 
 
-def _event(time_s: float, kind: EventKind, rng: np.random.Generator, indicators: dict[str, float] | None = None, details: dict[str, Any] | None = None) -> Event:
+class _Decided(TypedDict):
+    window_start_s: float
+    window_end_s: float
+    load: LoadState
+    thresholds: dict[str, Threshold]
+    method: Method
+
+
+def _decided(time_s: float, load: str) -> _Decided:
+    """What a suspension event states of its window: the fused method's limits in the load state."""
+    lv = LEVELS[load]
+    limits = {"fused_score": Threshold(lv["warning"], lv["alarm"]), "fused_trend": Threshold(lv["trend_warning"], lv["trend_alarm"])}
+    return _Decided(window_start_s=time_s - 120.0, window_end_s=time_s, load=LoadState(load), thresholds=limits, method=Method.FUSED)
+
+
+def _event(time_s: float, details: EventDetails, rng: np.random.Generator, indicators: dict[str, float] | None = None) -> Event:
     return Event(
         time_s=time_s,
-        kind=kind,
-        severity=DEFAULT_SEVERITY[kind],
+        kind=details.KIND,
+        severity=DEFAULT_SEVERITY[details.KIND],
         config_hash="fixture",
         indicators=indicators or {},
-        details=details or {},
+        details=details,
         event_id=f"{int(rng.integers(2**62)):016x}{int(rng.integers(2**62)):016x}",
     )
 

@@ -52,7 +52,7 @@ def test_listen_prints_each_event_once_and_stores_it_across_runs(tmp_path: Path,
     assert proc.returncode == 0, err
     printed = [json.loads(line) for line in out.splitlines()]
     assert [p["event_id"] for p in printed] == [e.event_id for e in events[:3]]  # the copy is dropped
-    assert printed[0]["schema"] == "bogiemon.event/1" and printed[0]["wagon_id"] == WAGON and printed[0]["seq"] == 1
+    assert printed[0]["schema"] == "bogiemon.event/2" and printed[0]["wagon_id"] == WAGON and printed[0]["seq"] == 1
     assert "not a valid message" in err
     # A second run with the same store: an event kept before is a duplicate still.
     proc = start_listen(broker.port, "--store", str(store), "--count", "1", "--client-id", "t2")
