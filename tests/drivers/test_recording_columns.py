@@ -223,3 +223,15 @@ def test_jitter_after_a_long_clean_stretch_of_a_clock_off_the_whole_hertz_loses_
     assert reader.fs_hz == FS_HZ and reader.gap_count == 0 and reader.resampled_samples > 0
     assert float(np.max(np.diff(got_t))) < 1.01 / FS_HZ  # no time skipped where the resampling starts
     assert got_t[-1] == pytest.approx(t[-1], abs=1.0 / FS_HZ)
+
+
+def test_another_writers_csv_on_an_install_without_pyarrow_is_one_line_saying_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bogiemon.drivers import recording_csv
+
+    monkeypatch.setattr(recording_csv, "parquet_available", lambda: False)  # a gateway's install
+    t = np.arange(100) / FS_HZ
+    path = write_text(tmp_path / "r.csv", "time;a1;a2;a3", np.column_stack([t, bogie(t.size, 9.81)]), delimiter=";")
+    with pytest.raises(RecordingError, match=r"r.csv: a CSV of other columns than time_s,a1,a2,a3 is read with pyarrow, which this install leaves out"):
+        open_recording_reader(path)
+    write_csv_recording(tmp_path / "own.csv", t, bogie(t.size, 9.81))  # bogiemon's own four columns need no mapping
+    assert read_recording(tmp_path / "own.csv").n_samples == 100
