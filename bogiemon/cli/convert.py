@@ -7,6 +7,7 @@ import argparse
 import sys
 import time
 
+from bogiemon.cli.mapping import add_mapping_arguments, with_mapping
 from bogiemon.cli.play import LAYOUT_CHOICES
 
 PROGRESS_AFTER_S = 2.0
@@ -20,6 +21,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--layout", choices=LAYOUT_CHOICES, help="the frame layout of a CAN log read or written (default: the config's)")
     p.add_argument("--dbc", help="the DBC of a CAN log read or written (default: the config's, else the shipped one)")
     p.add_argument("--channel", default="can0", help="the interface named in a candump log's lines (default can0)")
+    add_mapping_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.drivers.candb import load_layout
     from bogiemon.drivers.convert import convert, output_kind
 
-    config = load_config(args.config)
+    config = with_mapping(load_config(args.config), args)
     src = replay_source_config(args.input, config)
     src = src.model_copy(update={k: v for k, v in (("layout", args.layout), ("dbc_path", args.dbc)) if v is not None})
     output_kind(args.output)  # a wrong name before anything is read

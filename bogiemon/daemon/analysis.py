@@ -19,7 +19,7 @@ from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.sources import open_replay_source, recording_settings
 from bogiemon.detection import WindowIndicators
 from bogiemon.drivers.base import Block, EndOfStream, Source
-from bogiemon.drivers.recording import Recording, RecordingReader
+from bogiemon.drivers.recording import Recording, RecordingReader, follows_gap
 
 __all__ = ["ANALYSIS_BLOCK_S", "analyze_recording", "describe_source", "indicators_as_dict", "open_recording", "read_ahead", "recording_settings"]
 from bogiemon.judgement.windowing import BlockWindows
@@ -75,13 +75,14 @@ def analyze_recording(
 
 def _blocks(recording: Source | RecordingReader | Recording) -> Generator[Block, None, None]:
     """The blocks of a recording: a source's as it reads them, a reader's or a whole recording's
-    chunks as one segment each (they are uniform by their checks)."""
+    chunks (uniform by their checks; none spans a gap), the first after a gap saying so."""
     if isinstance(recording, RecordingReader | Recording):
-        first = True
+        previous_s: float | None = None
         for time_s, accel_mps2 in recording.chunks():
             if accel_mps2.shape[0]:
-                yield Block(start_s=float(time_s[0]), fs_hz=recording.fs_hz, accel_mps2=accel_mps2, gap_before=first)
-                first = False
+                gap = follows_gap(previous_s, float(time_s[0]), recording.fs_hz)
+                yield Block(start_s=float(time_s[0]), fs_hz=recording.fs_hz, accel_mps2=accel_mps2, gap_before=gap)
+                previous_s = float(time_s[-1])
         return
     try:
         while True:

@@ -88,8 +88,9 @@ def _open_replay(src: ReplaySourceConfig, config: BogiemonConfig) -> Source:
         return load_layout(src.dbc_path or None, src.layout)
 
     source = open_replay(
-        src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s
-    )
+        src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s,
+        columns=src.column_map(),
+    )  # fmt: skip
     if isinstance(source, RecordingReplaySource):  # a recording brings its own rate: one the config cannot run at is refused here, in one line
         try:
             recording_settings(src.path, source.fs_hz, config)
@@ -115,6 +116,8 @@ def replay_source_config(path: str | Path, config: BogiemonConfig, realtime: boo
     settings: dict[str, Any] = {"max_block_s": src.max_block_s if max_block_s is None else max_block_s}
     if isinstance(src, CanSourceConfig | ReplaySourceConfig | SimulatedSourceConfig):
         settings.update(layout=src.layout, dbc_path=src.dbc_path)
+    if isinstance(src, ReplaySourceConfig):
+        settings.update(unit=src.unit, columns=src.columns)
     return ReplaySourceConfig(kind="replay", path=str(path), realtime=realtime, **settings)
 
 

@@ -175,7 +175,7 @@ class Mf4File:
         known = ", ".join(self.channel_names()[:12]) or "none"
         missing = [c for c in channels if c not in {ch.name for g in self.groups for ch in g.channels}]
         where = f"no channel {', '.join(missing)}" if missing else f"channels {', '.join(channels)} are not in one group"
-        raise RecordingError(f"{self.path}: {where} (its channels: {one_line(known, 200)}); map the channels with [source.columns] or --columns")
+        raise RecordingError(f"{self.path}: {where} (its channels: {one_line(known, 200)})")
 
     def read_signals(self, group: SignalGroup, first: int, count: int) -> tuple[NDArray[np.float64], list[NDArray[Any]]]:
         """(time_s from the file's start, [values of each channel]) of records first..first+count."""

@@ -4,6 +4,7 @@ that reads as pyarrow does) and the writer (6 decimals, the same bytes for the s
 
 from __future__ import annotations
 
+import csv
 import gzip
 import os
 import re
@@ -15,11 +16,12 @@ from typing import BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.drivers.columns import ColumnMap
 from bogiemon.drivers.csv_rows import NUMBER, RowsError, parse_rows
 from bogiemon.drivers.files import UntrustedFile, size_text
 from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, arrow_columns, recording_rows
+from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, arrow_columns, parquet_available, recording_rows
 
 _ROW_FORMAT = "%.6f,%.6f,%.6f,%.6f\n"
 _WRITE_CHUNK_ROWS = 65536
@@ -34,14 +36,35 @@ _NOT_BREAK = re.compile(rb"[^\r\n]+")
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """How a file's lines hold a row: the delimiter, the header's names, and the cells read (the
+    time's, then each channel's, in channel order)."""
+
+    delimiter: bytes
+    names: tuple[str, ...]
+    picks: tuple[int, ...]
+
+    @property
+    def text(self) -> str:
+        return self.delimiter.decode().join(self.names)
+
+
+_DEFAULT_LAYOUT = _Layout(b",", COLUMNS, tuple(range(len(COLUMNS))))
+# The delimiters the sniffer chooses among (a decimal comma's files use ';').
+_DELIMITERS = ",;\t|"
+
+
 class CsvRecordingReader(RecordingReader):
-    """A CSV recording, plain or gzip: surveyed at the open, parsed by pyarrow's streaming reader."""
+    """A CSV recording, plain or gzip: surveyed at the open, parsed by pyarrow's streaming reader.
+    Its header names its columns: bogiemon's own (time_s,a1,a2,a3), or others mapped by `columns`."""
 
     format = "csv"
 
-    def __init__(self, file: UntrustedFile) -> None:
-        super().__init__(file)
+    def __init__(self, file: UntrustedFile, columns: ColumnMap | None = None) -> None:
+        super().__init__(file, columns)
         self._header_bytes = 0
+        self._layout = _DEFAULT_LAYOUT
 
     def open(self, min_samples: int) -> None:
         with self.file.reopen() as f:
@@ -56,13 +79,25 @@ class CsvRecordingReader(RecordingReader):
             except UnicodeDecodeError:
                 _drain(f)  # a damaged gzip stream inflates to garbage: call it damaged, not text
                 self.error(f"not a text file: expected a CSV recording with header '{HEADER}'")
-            if text.strip() != HEADER:
-                _drain(f)
-                shown = quoted(text.strip()) or "an empty line"
-                self.error(f"line 1: expected the header '{HEADER}', found '{shown}'")
+            if text.strip() != HEADER or not self.columns.is_default:
+                try:
+                    self._layout = _mapped_layout(text.strip(), first_chunk[self._header_bytes :], self.columns)
+                except ValueError as exc:
+                    _drain(f)
+                    self.error(f"line 1: {exc}")
+                if not parquet_available():  # numpy's parser reads bogiemon's own four columns only
+                    _drain(f)
+                    self.error(
+                        f"a CSV of other columns than {HEADER} is read with pyarrow, which this install leaves out: "
+                        "pip install 'bogiemon[recordings]', or convert it with bogiemon convert where pyarrow is installed"
+                    )
             survey = _survey(f, first_chunk[self._header_bytes :])
         self.n_samples = survey.rows
-        self._check_whole(min_samples, _row_time(survey.first), _row_time(survey.last))
+        first_s, last_s = _row_time(survey.first, self._layout), _row_time(survey.last, self._layout)
+        time_name = self._layout.names[self._layout.picks[0]]
+        self.time_to_s = self.columns.resolved_time_unit(time_name, first_s).to_s
+        scale = self.time_to_s
+        self._check_whole(min_samples, None if first_s is None else first_s * scale, None if last_s is None else last_s * scale)
 
     def where(self, row: int) -> str:
         return f"line {self._line_of_row(row)}"
@@ -84,7 +119,7 @@ class CsvRecordingReader(RecordingReader):
         raise AssertionError(f"row {row} not found in {self.path}")  # pragma: no cover - rows come from the file
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        parse, refused = _csv_parser()
+        parse, refused = _csv_parser(self._layout)
         number = 2  # the first line of the block
         with self.file.reopen() as f:
             _skip(f, self._header_bytes)
@@ -111,7 +146,7 @@ class CsvRecordingReader(RecordingReader):
         start = 0
         for found in (*_LINE_BREAK.finditer(block), None):
             line = block[start : found.start() if found else len(block)]
-            problem = _line_problem(line) if line else None
+            problem = _line_problem(line, self._layout) if line else None
             if problem is not None:
                 return start, f"line {number}: {problem}"
             if found is None:
@@ -123,10 +158,11 @@ class CsvRecordingReader(RecordingReader):
 CsvParse = Callable[[bytes], Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]]
 
 
-def _csv_parser() -> tuple[CsvParse, type[Exception]]:
-    """The parser of a block of whole lines, and what it raises for a line that is no row:
-    pyarrow's CSV reader where it is installed, else numpy's (drivers/csv_rows.py: the same rows
-    to the bits, the same lines refused; a gateway installs without pyarrow)."""
+def _csv_parser(layout: _Layout = _DEFAULT_LAYOUT) -> tuple[CsvParse, type[Exception]]:
+    """The parser of a block of whole lines of a layout, and what it raises for a line that is no
+    row: pyarrow's CSV reader where it is installed, else numpy's (drivers/csv_rows.py: the same
+    rows to the bits, the same lines refused; a gateway installs without pyarrow; bogiemon's own
+    four columns only, which the open checked)."""
     try:
         import pyarrow as pa
         import pyarrow.csv as pacsv
@@ -140,12 +176,18 @@ def _csv_parser() -> tuple[CsvParse, type[Exception]]:
         return parse_numpy, RowsError
 
     # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
-    # nothing of pyarrow's left running when the reading stops at a bad row.
-    read_options = pacsv.ReadOptions(column_names=list(COLUMNS), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
-    parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
-    convert_options = pacsv.ConvertOptions(
-        column_types=dict.fromkeys(COLUMNS, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
+    # nothing of pyarrow's left running when the reading stops at a bad row. Only the columns of
+    # the layout are converted, in its order (the time, then each channel).
+    cells = [f"c{i}" for i in range(len(layout.names))]  # the header's own names may repeat
+    picked = [cells[i] for i in layout.picks]
+    read_options = pacsv.ReadOptions(column_names=cells, block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
+    parse_options = pacsv.ParseOptions(
+        delimiter=layout.delimiter.decode(), quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True
     )
+    convert_options = pacsv.ConvertOptions(
+        include_columns=picked, column_types=dict.fromkeys(picked, pa.float64()), null_values=[], strings_can_be_null=False,
+        quoted_strings_can_be_null=False,
+    )  # fmt: skip
 
     def parse_arrow(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
         for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
@@ -154,19 +196,39 @@ def _csv_parser() -> tuple[CsvParse, type[Exception]]:
     return parse_arrow, pa.ArrowInvalid
 
 
-def _line_problem(line: bytes) -> str | None:
-    """Why a line is no row of four numbers as pyarrow reads them, or None if it is one."""
+def _mapped_layout(header: str, data: bytes, columns: ColumnMap) -> _Layout:
+    """The layout of a file whose header is not bogiemon's own: its delimiter (the sniffer's
+    choice among _DELIMITERS on the header and the first lines), its time column and its channels'
+    by the mapping; ValueError saying what is missing and how to map it."""
+    sample = header + "\n" + data[:4096].decode("utf-8", "replace")
+    try:
+        delimiter = csv.Sniffer().sniff(sample, delimiters=_DELIMITERS).delimiter
+    except csv.Error:
+        delimiter = max(_DELIMITERS, key=header.count)
+    names = tuple(cell.strip().strip('"').strip() for cell in header.split(delimiter))
+    try:
+        selected = columns.select(list(names))
+    except ValueError as exc:
+        raise ValueError(f"expected the header '{HEADER}' or the columns of a mapping, found '{quoted(header) or 'an empty line'}': {exc}") from None
+    picks = tuple(names.index(name) for name in selected)
+    return _Layout(delimiter.encode(), names, picks)
+
+
+def _line_problem(line: bytes, layout: _Layout = _DEFAULT_LAYOUT) -> str | None:
+    """Why a line is no row of numbers as pyarrow reads them, or None if it is one."""
     try:
         line.decode("utf-8")
     except UnicodeDecodeError as exc:
         cut = " (cut in the middle of a character: the file is truncated)" if exc.reason == "unexpected end of data" else ""
         return f"not UTF-8 text, byte 0x{line[exc.start]:02x} at column {exc.start + 1}{cut}; remove or repair the line"
-    cells = line.split(b",")
-    if len(cells) != 4:
-        return f"expected 4 comma-separated values ({HEADER}), found {len(cells)}"
-    for name, cell in zip(COLUMNS, cells, strict=True):
-        if not _NUMBER.fullmatch(cell):
-            return f"{name} is not a number: '{quoted(cell.strip(), 40)}'"
+    cells = line.split(layout.delimiter)
+    n = len(layout.names)
+    if len(cells) != n:
+        separated = "comma" if layout.delimiter == b"," else repr(layout.delimiter.decode())
+        return f"expected {n} {separated}-separated values ({layout.text}), found {len(cells)}"
+    for i in layout.picks:
+        if not _NUMBER.fullmatch(cells[i]):
+            return f"{layout.names[i]} is not a number: '{quoted(cells[i].strip(), 40)}'"
     return None
 
 
@@ -244,15 +306,16 @@ def _count_lines(data: bytes) -> tuple[int, int]:
     return starts, breaks
 
 
-def _row_time(line: bytes | None) -> float | None:
-    """The time of a row as the parser reads it, or None if the row is no row of four numbers."""
+def _row_time(line: bytes | None, layout: _Layout) -> float | None:
+    """The time of a row (in the file's unit) as the parser reads it, or None if the row is no row
+    of the layout."""
     if line is None:
         return None
-    cells = line.split(b",")
-    if len(cells) != 4 or not _NUMBER.fullmatch(cells[0]):
+    cells = line.split(layout.delimiter)
+    if len(cells) != len(layout.names) or not _NUMBER.fullmatch(cells[layout.picks[0]]):
         return None
     try:
-        return float(cells[0])
+        return float(cells[layout.picks[0]])
     except ValueError:  # nan(...): pyarrow's NaN, no time
         return None
 

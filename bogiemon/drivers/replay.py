@@ -29,15 +29,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source
+from bogiemon.drivers.columns import ColumnMap
 from bogiemon.drivers.counters import counters
 from bogiemon.drivers.files import UntrustedFile, open_untrusted
-from bogiemon.drivers.recording import RECORDING_FILE, RecordingError, open_recording_reader
+from bogiemon.drivers.recording import RECORDING_FILE, RecordingError, follows_gap, open_recording_reader
 from bogiemon.drivers.sniff import NOT_READ, input_kind
 
 if TYPE_CHECKING:  # cantools and python-can load with a CAN log only
     from bogiemon.drivers.candb import CanLayout
 
-RECORDING_COUNTERS = counters("clipped_samples")
+RECORDING_COUNTERS = counters("clipped_samples", "resampled_samples", "recording_gaps")
 __all__ = ["CsvReplaySource", "RecordingReplaySource", "open_replay"]
 
 
@@ -49,7 +50,9 @@ class RecordingReplaySource(Source):
     grow with its length; its rate is known at the open. A bad row ends the replay where the reading
     reaches it: the samples before it are delivered (the last block may be short), then read()
     raises RecordingError naming the line. Samples beyond the converter's range arrive clipped, and
-    are counted (counters.extra["clipped_samples"]).
+    are counted (counters.extra["clipped_samples"]); so are the samples of jittered stretches
+    resampled onto the nominal grid and the gaps, after each of which a block starts a segment
+    (gap_before).
     """
 
     finite = True
@@ -61,8 +64,9 @@ class RecordingReplaySource(Source):
         max_block_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        columns: ColumnMap | None = None,
     ) -> None:
-        self.reader = open_recording_reader(path)
+        self.reader = open_recording_reader(path, columns=columns)
         self.fs_hz = self.reader.fs_hz
         self.counters = HealthCounters()
         for name in RECORDING_COUNTERS:
@@ -79,6 +83,11 @@ class RecordingReplaySource(Source):
         self._accel_mps2: NDArray[np.float64] = np.empty((0, 3))
         self._delivered = 0
         self._start_wall_s: float | None = None
+        # A chunk after a gap waits here until the samples before it are delivered: a block never
+        # spans a gap.
+        self._after_gap: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._gap_before = True  # the pending samples start a segment
+        self._last_read_s: float | None = None
 
     @property
     def fraction_read(self) -> float:
@@ -87,7 +96,9 @@ class RecordingReplaySource(Source):
 
     def _fill(self) -> None:
         """Read on until a whole block is pending or the file has ended."""
-        while self._time_s.shape[0] < self.max_block_n and not self._ended:
+        if self._after_gap is not None and self._time_s.shape[0] == 0:
+            (self._time_s, self._accel_mps2), self._after_gap, self._gap_before = self._after_gap, None, True
+        while self._time_s.shape[0] < self.max_block_n and not self._ended and self._after_gap is None:
             try:
                 time_s, accel_mps2 = next(self._chunks)
             except StopIteration:
@@ -97,13 +108,31 @@ class RecordingReplaySource(Source):
                 self._ended, self._error = True, exc
                 break
             finally:
-                clipped = self.reader.clipped_samples - self.counters.extra["clipped_samples"]
-                if clipped:
-                    self.counters.add("clipped_samples", clipped)
+                self._count()
+            if not time_s.shape[0]:
+                continue
+            gap = self._last_read_s is not None and follows_gap(self._last_read_s, float(time_s[0]), self.fs_hz)
+            self._last_read_s = float(time_s[-1])
+            if gap:
+                if self._time_s.shape[0]:
+                    self._after_gap = (time_s, accel_mps2)  # delivered once those before it are
+                    break
+                self._gap_before = True
             if self._time_s.shape[0]:
                 time_s = np.concatenate([self._time_s, time_s])
                 accel_mps2 = np.concatenate([self._accel_mps2, accel_mps2])
             self._time_s, self._accel_mps2 = time_s, accel_mps2
+
+    def _count(self) -> None:
+        """Bring the counters up to the reader's, so far."""
+        extra = self.counters.extra
+        for name, value in (
+            ("clipped_samples", self.reader.clipped_samples),
+            ("resampled_samples", self.reader.resampled_samples),
+            ("recording_gaps", self.reader.gap_count),
+        ):
+            if value > extra[name]:
+                self.counters.add(name, value - extra[name])
 
     def _due_n(self) -> int:
         """Pending samples whose time has come (all of them when unpaced)."""
@@ -140,8 +169,9 @@ class RecordingReplaySource(Source):
             start_s=float(self._time_s[0]),
             fs_hz=self.fs_hz,
             accel_mps2=self._accel_mps2[:ready],
-            gap_before=self._delivered == 0,
+            gap_before=self._gap_before,
         )
+        self._gap_before = False
         self._time_s, self._accel_mps2 = self._time_s[ready:], self._accel_mps2[ready:]
         self._delivered += ready
         self.counters.frames += ready
@@ -161,6 +191,7 @@ def open_replay(
     layout: CanLayout | Callable[[], CanLayout] | None,
     fs_hz: float,
     max_block_s: float = 1.0,
+    columns: ColumnMap | None = None,
 ) -> Source:
     """The replay source for a file, by its content: a recording of samples (.csv, .csv.gz,
     .parquet, MF4 of signals), or a CAN log decoded with layout (a CanLayout, or a function
@@ -171,7 +202,7 @@ def open_replay(
         if kind is None:
             raise RecordingError(f"{path}: {NOT_READ}")
         if kind == "samples":
-            return RecordingReplaySource(f, rate=rate, max_block_s=max_block_s)
+            return RecordingReplaySource(f, rate=rate, max_block_s=max_block_s, columns=columns)
         if layout is None:
             raise RecordingError(f"{path}: a CAN log needs a DBC layout to be decoded")
         from bogiemon.drivers.replay_can import CanLogReplaySource  # python-can, for CAN logs only

@@ -120,3 +120,28 @@ def candump_human_message(path: str | Path) -> str:
         "are rounded or relative and its lines are for the eye. Record with `candump -L can0 > run.log` "
         "(or `candump -l`), which writes every frame with its absolute time"
     )
+
+
+def readable_name(name: str) -> bool:
+    """Whether a file's name is one of a recording or a CAN log (a text log's also gzip-compressed)."""
+    lowered = name.lower().removesuffix(".gz")
+    text_logs = tuple(s for f in FORMATS.values() if f.streams for s in f.suffixes)
+    if name.lower().endswith(".gz"):
+        return lowered.endswith((".csv", *text_logs))
+    return lowered.endswith((".csv", ".parquet", *CAN_LOG_SUFFIXES))
+
+
+def expand_folders(paths: list[str | Path], error: type[Exception]) -> list[Path]:
+    """The files named, a folder standing for the recordings and CAN logs in it (not its
+    subfolders), in name order: loggers and the recorder number or date their files, so that
+    is their time order. `error` for a folder holding none."""
+    out: list[Path] = []
+    for path in map(Path, paths):
+        if not path.is_dir():
+            out.append(path)
+            continue
+        found = sorted(p for p in path.iterdir() if p.is_file() and readable_name(p.name))
+        if not found:
+            raise error(f"{path}: a folder holding no recording or CAN log (.csv, .csv.gz, .parquet, .mf4, {', '.join(CAN_LOG_SUFFIXES[:4])}, ...)")
+        out.extend(found)
+    return out

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from bogiemon.drivers.base import Block, EndOfStream, Source
+from bogiemon.drivers.columns import nominal_rate_hz
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import MAX_ACCEL_MPS2, RecordingError, read_recording, write_csv_recording, write_parquet_recording
 from bogiemon.drivers.replay import CsvReplaySource, open_replay
@@ -294,7 +295,7 @@ def whole_file_blocks(path: Path, block_n: int) -> list[Block]:
     csv module's reading of it: consecutive block_n samples, the rate of the whole file."""
     rows = list(csv.reader(io.StringIO(path.read_text())))[1:]
     data = np.array([[float(cell) for cell in row] for row in rows])
-    fs_hz = (data.shape[0] - 1) / (data[-1, 0] - data[0, 0])
+    fs_hz = nominal_rate_hz((data[-1, 0] - data[0, 0]) / (data.shape[0] - 1))  # snapped to the whole hertz
     return [
         Block(float(data[i, 0]), fs_hz, data[i : i + block_n, 1:], gap_before=i == 0) for i in range(0, data.shape[0], block_n)
     ]
