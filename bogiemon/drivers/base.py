@@ -48,7 +48,10 @@ class Block:
     accel_mps2: (n, 3) float64, columns a1, a2, a3 (specific force, gravity included or not);
     gap_before: samples were lost, or the stream (re)started, before this block: anything
       computed across this boundary must be discarded, never bridged;
-    status: per sensor, the status bits seen in this block.
+    status: per sensor, the status bits seen in this block;
+    bogie: which of the wagon's bogies the sensors are on, 0 the first ([[bogie]] tables in their
+      order; a one-bogie source's blocks are all 0). Each bogie's blocks are a stream of their own:
+      gap_before and the times are within it.
     """
 
     start_s: float
@@ -56,10 +59,13 @@ class Block:
     accel_mps2: NDArray[np.float64]
     gap_before: bool = False
     status: tuple[SensorStatus, SensorStatus, SensorStatus] = ALL_OK
+    bogie: int = 0
 
     def __post_init__(self) -> None:
         if self.accel_mps2.ndim != 2 or self.accel_mps2.shape[1] != 3:
             raise ValueError(f"a block holds (n, 3) samples, got shape {self.accel_mps2.shape}")
+        if self.bogie < 0:
+            raise ValueError(f"a block of bogie {self.bogie}: bogies count from 0")
         # The sources validate time stamps where they read them (a segment's samples may then run
         # past MAX_TIME_S by its length); a block past that with a time or rate that is not
         # finite is a bug in a driver, and must not reach windows and events.
@@ -114,6 +120,9 @@ class Source(ABC):
     # A recording (ends with EndOfStream; the reader may wait for downstream rather than drop)
     # or a live stream (never waits: samples not taken in time are lost on the bus).
     finite: bool = False
+    # The bogies whose blocks it gives (Block.bogie 0 .. bogies - 1): 2 for a wagon's recording or
+    # a CAN bus carrying both bogies' frames.
+    bogies: int = 1
 
     @abstractmethod
     def read(self, timeout_s: float) -> Block | None:

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import MAX_TIME_S
-from bogiemon.drivers.recording_format import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
+from bogiemon.drivers.recording_format import COLUMNS, MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
 
 # A time step may deviate this much (relative) from the file's step: enough for times printed
 # with 6 decimals at 1 kHz, far less than the 100 % of one lost sample.
@@ -35,6 +35,7 @@ class RecordingReader(ABC):
 
     path: Path
     format: str  # "csv" or "parquet"
+    columns: tuple[str, ...] = COLUMNS  # its column set, found at the open: COLUMNS or a wagon's WAGON_COLUMNS
     n_samples: int
     start_s: float  # the time of the first sample
     last_s: float  # the time of the last sample
@@ -46,6 +47,11 @@ class RecordingReader(ABC):
     @property
     def duration_s(self) -> float:
         return self.n_samples / self.fs_hz
+
+    @property
+    def bogies(self) -> int:
+        """The bogies it holds: 1, or 2 for a wagon's recording (time_s,a1,a2,a3,b1,b2,b3)."""
+        return (len(self.columns) - 1) // 3
 
     @abstractmethod
     def open(self, min_samples: int) -> None:

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.files import UntrustedFile, open_untrusted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, RECORDING_FILE, RecordingError, arrow_columns, recording_rows, short_error
+from bogiemon.drivers.recording_format import COLUMN_SETS, RECORDING_FILE, RecordingError, arrow_columns, recording_rows, short_error
 
 if TYPE_CHECKING:
     import pyarrow.parquet as pq
@@ -58,9 +58,12 @@ class ParquetRecordingReader(RecordingReader):
         with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
             pf = self._open_file(f)
             schema = pf.schema_arrow
-            if schema.names != list(COLUMNS) or any(t != pa.float64() for t in schema.types):
+            sets = {c: c for c in COLUMN_SETS.values()}
+            if tuple(schema.names) not in sets or any(t != pa.float64() for t in schema.types):
                 found = ", ".join(f"{n} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
-                self.error(f"expected the float64 columns {', '.join(COLUMNS)}, found {found or 'none'}")
+                wanted = " (or ".join(", ".join(c) for c in COLUMN_SETS.values())
+                self.error(f"expected the float64 columns {wanted}: both bogies), found {found or 'none'}")
+            self.columns = sets[tuple(schema.names)]
             meta = pf.metadata
             for i in range(meta.num_row_groups):
                 group = meta.row_group(i)
@@ -73,7 +76,7 @@ class ParquetRecordingReader(RecordingReader):
                 # (a C++ exception let out of RowGroupMetaData.column()) on a column chunk whose
                 # statistics carry a definition-level histogram of the wrong size (found by make fuzz).
                 declared = group.total_byte_size
-                if declared > len(COLUMNS) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
+                if declared > len(self.columns) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
                     self.error(f"row group {i} declares {declared} bytes for {group.num_rows} rows: damaged, or no recording")
             self.n_samples = meta.num_rows
             first_s = last_s = None
@@ -126,12 +129,13 @@ def write_parquet_recording(
     import pyarrow.parquet as pq
 
     time_s, accel = recording_rows(time_s, accel_mps2)
-    schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in COLUMNS])
-    table = pa.Table.from_arrays([pa.array(time_s), *(pa.array(np.ascontiguousarray(accel[:, i])) for i in range(3))], schema=schema)
+    columns = COLUMN_SETS[accel.shape[1]]
+    schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in columns])
+    table = pa.Table.from_arrays([pa.array(time_s), *(pa.array(np.ascontiguousarray(accel[:, i])) for i in range(accel.shape[1]))], schema=schema)
     with Path(path).open("wb") as raw:
         pq.write_table(
             table, raw, row_group_size=PARQUET_GROUP_ROWS, compression="zstd",
-            use_dictionary=list(COLUMNS[1:]), use_byte_stream_split=[COLUMNS[0]],
+            use_dictionary=list(columns[1:]), use_byte_stream_split=[columns[0]],
         )  # fmt: skip
         if fsync:
             raw.flush()

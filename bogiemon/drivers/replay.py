@@ -61,7 +61,8 @@ class RecordingReplaySource(Source):
     grow with its length; its rate is known at the open. A bad row ends the replay where the reading
     reaches it: the samples before it are delivered (the last block may be short), then read()
     raises RecordingError naming the line. Samples beyond the converter's range arrive clipped, and
-    are counted (counters.extra["clipped_samples"]).
+    are counted (counters.extra["clipped_samples"]). A wagon's recording (both bogies) gives each
+    stretch as one block per bogie (Block.bogie), bogie 1's first, read after read.
     """
 
     finite = True
@@ -76,6 +77,7 @@ class RecordingReplaySource(Source):
     ) -> None:
         self.reader = open_recording_reader(path)
         self.fs_hz = self.reader.fs_hz
+        self.bogies = self.reader.bogies
         self.counters = HealthCounters()
         for name in RECORDING_COUNTERS:
             self.counters.extra[name] = 0
@@ -88,9 +90,10 @@ class RecordingReplaySource(Source):
         self._error: RecordingError | None = None  # found while reading on: raised once what was before it is delivered
         # The samples read and not yet delivered.
         self._time_s: NDArray[np.float64] = np.empty(0)
-        self._accel_mps2: NDArray[np.float64] = np.empty((0, 3))
+        self._accel_mps2: NDArray[np.float64] = np.empty((0, 3 * self.reader.bogies))
         self._delivered = 0
         self._start_wall_s: float | None = None
+        self._other_bogies: list[Block] = []  # a wagon's stretch: the blocks of its other bogies, next
 
     def _fill(self) -> None:
         """Read on until a whole block is pending or the file has ended."""
@@ -122,6 +125,8 @@ class RecordingReplaySource(Source):
         return int(np.searchsorted(self._time_s, data_s, side="right"))
 
     def read(self, timeout_s: float) -> Block | None:
+        if self._other_bogies:
+            return self._other_bogies.pop(0)
         self._fill()
         pending = self._time_s.shape[0]
         if pending == 0:
@@ -143,11 +148,15 @@ class RecordingReplaySource(Source):
         if ready == 0:
             self.counters.timeouts += 1
             return None
-        block = Block(
-            start_s=float(self._time_s[0]),
-            fs_hz=self.fs_hz,
-            accel_mps2=self._accel_mps2[:ready],
-            gap_before=self._delivered == 0,
+        block, *self._other_bogies = (
+            Block(
+                start_s=float(self._time_s[0]),
+                fs_hz=self.fs_hz,
+                accel_mps2=self._accel_mps2[:ready, 3 * k : 3 * k + 3],
+                gap_before=self._delivered == 0,
+                bogie=k,
+            )
+            for k in range(self.reader.bogies)
         )
         self._time_s, self._accel_mps2 = self._time_s[ready:], self._accel_mps2[ready:]
         self._delivered += ready

@@ -66,8 +66,8 @@ def test_blank_lines_and_a_byte_order_mark_are_accepted(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("", r"line 1: expected the header 'time_s,a1,a2,a3', found 'an empty line'"),
-        ("time,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3', found 'time,a1,a2,a3'"),
+        ("", r"line 1: expected the header 'time_s,a1,a2,a3' \(or 'time_s,a1,a2,a3,b1,b2,b3': both bogies\), found 'an empty line'"),
+        ("time,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' \(or 'time_s,a1,a2,a3,b1,b2,b3': both bogies\), found 'time,a1,a2,a3'"),
         ("time_s,a1,a2,a3\n", r"holds no samples after the header"),
         ("time_s,a1,a2,a3\n0,1,2,3\n", r"holds 1 sample\(s\)"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,x,3\n", r"line 3: a2 is not a number: 'x'"),
@@ -263,7 +263,8 @@ def test_a_compressed_line_of_many_megabytes_is_refused_after_the_first(tmp_path
     with pytest.raises(RecordingError) as info:
         open_recording_reader(path)
     assert str(info.value) == (
-        f"{path}: line 2: longer than 1024 KiB; a recording is a CSV file (time_s,a1,a2,a3), plain or .csv.gz, "
+        f"{path}: line 2: longer than 1024 KiB; a recording is a CSV file (time_s,a1,a2,a3, or time_s,a1,a2,a3,b1,b2,b3 "
+        "for both bogies), plain or .csv.gz, "
         "or a .parquet file: is this the right file?"
     )
 
@@ -364,7 +365,7 @@ def test_a_parquet_file_of_other_columns_is_no_recording(tmp_path: Path, columns
     import pyarrow.parquet as pq
 
     pq.write_table(pa.table(columns), tmp_path / "x.parquet")
-    with pytest.raises(RecordingError, match=rf"x.parquet: expected the float64 columns time_s, a1, a2, a3, found {found}$"):
+    with pytest.raises(RecordingError, match=rf"x.parquet: expected the float64 columns time_s, a1, a2, a3 \(or time_s, a1, a2, a3, b1, b2, b3: both bogies\), found {found}$"):
         read_recording(tmp_path / "x.parquet")
 
 
