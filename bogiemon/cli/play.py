@@ -38,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 def run(args: argparse.Namespace) -> int:
     from bogiemon.drivers.candb import load_layout
     from bogiemon.drivers.player import PlayError, open_player_bus, play
-    from bogiemon.drivers.recording import read_csv_recording
+    from bogiemon.drivers.recording import read_csv_recording, refuse_wagon
 
     if args.rate < 0:
         raise PlayError(f"--rate must be 0 (as fast as possible) or positive, got {args.rate:g}")
@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     logging.getLogger("can").addHandler(logging.NullHandler())
     layout = load_layout(args.dbc, args.layout)
     recording = read_csv_recording(args.file)
+    refuse_wagon(args.file, recording.bogies, "play")  # the DBC holds one bogie's frames today
     bus = open_player_bus(args.interface, args.channel)
     try:
         if args.ready_file is not None:

@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.detection import IndicatorStream, ProcessingSettings, WindowIndicators
-from bogiemon.drivers.recording import Recording, RecordingError, RecordingReader, open_recording_reader
+from bogiemon.drivers.recording import Recording, RecordingError, RecordingReader, open_recording_reader, refuse_wagon
 
 
 def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -> ProcessingSettings:
@@ -35,10 +35,12 @@ def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -
         ) from None
 
 
-def open_recording(path: str | Path, config: BogiemonConfig) -> RecordingReader:
-    """Open a recording (CSV, .csv.gz, Parquet) and check the config can analyse it: its rate, and
-    at least one window of it (a bad row in a file too short is named first)."""
+def open_recording(path: str | Path, config: BogiemonConfig, command: str = "analyze") -> RecordingReader:
+    """Open a recording (CSV, .csv.gz, Parquet) and check the config can analyse it: one bogie's
+    (a wagon's is refused, naming the command), its rate, and at least one window of it (a bad row
+    in a file too short is named first)."""
     reader = open_recording_reader(path)
+    refuse_wagon(path, reader.bogies, command)
     settings = recording_settings(path, reader.fs_hz, config)
     reader.require_samples(settings.window_n)
     return reader
@@ -52,6 +54,7 @@ def analyze_recording(
     Clipped samples are counted at clip_level_mps2 (default: the config's health.clip_level_mps2).
     A RecordingReader raises RecordingError at a bad row, after the windows that end before it.
     """
+    refuse_wagon(recording.path, recording.bogies, "analyze")  # the core takes one bogie's (n, 3)
     settings = recording_settings(recording.path, recording.fs_hz, config)
     clip = config.health.clip_level_mps2 if clip_level_mps2 is None else clip_level_mps2
     stream = IndicatorStream(settings, config.bogie_geometry(), recording.start_s, clip)
