@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.files import UntrustedFile, open_untrusted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMN_SETS, RECORDING_FILE, RecordingError, arrow_columns, recording_rows, short_error
+from bogiemon.drivers.recording_format import COLUMN_SETS, COLUMNS, RECORDING_FILE, WAGON_COLUMNS, RecordingError, arrow_columns, recording_rows, short_error
 
 if TYPE_CHECKING:
     import pyarrow.parquet as pq
@@ -58,12 +58,14 @@ class ParquetRecordingReader(RecordingReader):
         with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
             pf = self._open_file(f)
             schema = pf.schema_arrow
-            sets = {c: c for c in COLUMN_SETS.values()}
-            if tuple(schema.names) not in sets or any(t != pa.float64() for t in schema.types):
+            names = tuple(schema.names)
+            if names not in COLUMN_SETS.values() or any(t != pa.float64() for t in schema.types):
                 found = ", ".join(f"{n} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
-                wanted = " (or ".join(", ".join(c) for c in COLUMN_SETS.values())
-                self.error(f"expected the float64 columns {wanted}: both bogies), found {found or 'none'}")
-            self.columns = sets[tuple(schema.names)]
+                self.error(
+                    f"expected the float64 columns {', '.join(COLUMNS)} (or {', '.join(WAGON_COLUMNS)}: both bogies), "
+                    f"found {found or 'none'}"
+                )
+            self.columns = names
             meta = pf.metadata
             for i in range(meta.num_row_groups):
                 group = meta.row_group(i)
