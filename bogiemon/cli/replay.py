@@ -1,4 +1,4 @@
-"""`bogiemon replay RECORDING... [--config F] [--load auto|full|tare] [--json] [--realtime]`."""
+"""`bogiemon replay RECORDING... [--config F] [--load auto|full|tare] [--json] [--realtime] [--duty]`."""
 
 from __future__ import annotations
 
@@ -22,6 +22,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--json", action="store_true", help="events as JSON lines")
     p.add_argument("--realtime", action="store_true", help="pace the recordings at real time instead of as fast as possible")
     p.add_argument("--state-dir", help="keep the event store here (default: a temporary one)")
+    p.add_argument("--duty", action="store_true",
+                   help="read the recordings on the config's [duty] cycle, as the daemon would on the wagon "
+                        "(its rests skip samples): what the duty cycle costs the detection")  # fmt: skip
     p.set_defaults(run=run)
 
 
@@ -30,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.replay import replay
 
     config = load_config(args.config)
-    summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)])
+    summary = replay(args.files, config, args.load, args.realtime, args.state_dir, [print_sink(args.json)], duty=args.duty)
     c = summary.counters
     print(
         f"replayed {summary.recordings} recording(s): {c.windows} windows, {c.judged} judged, {c.gated} gated, "

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import shutil
 import sqlite3
 import tempfile
@@ -21,8 +22,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from bogiemon.drivers.atomic import fsync_path
+from bogiemon.drivers.quoting import quoted
 
 DB_NAME = "events.sqlite3"
+# A store being created (_create): tempfile.mkstemp's 8 characters between the prefix and the suffix,
+# and the journal files SQLite may leave beside it. Named so that a start can tell it is bogiemon's.
+STORE_TEMPORARY = re.compile(rf"\.{re.escape(DB_NAME)}\.[a-z0-9_]{{8}}\.new(?:-wal|-shm|-journal)?")
 SCHEMA_VERSION = 3
 # Below this much free space a failing open or commit is named a full file system: a commit of
 # one window's events and state writes a few pages to the WAL, and its index grows in 32 KiB steps.
@@ -197,7 +202,7 @@ class StoreFile:
         return db
 
     def damaged(self, detail: str) -> str:
-        detail = " ".join(detail.split())  # quick_check reports one problem per line: the error is one line
+        detail = quoted(" ".join(detail.split()), 300)  # quick_check reports one problem per line, which may quote the file
         return (
             f"{self.path}: the event store is damaged ({detail}); bogiemon leaves it untouched: move it aside "
             f"(mv {self.path} {self.path}.damaged, with its -wal and -shm files), then start again for a new store "

@@ -50,13 +50,12 @@ recording_parquet.py (each format's reader and writer).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.files import open_untrusted
+from bogiemon.drivers.files import UntrustedFile, open_untrusted
 from bogiemon.drivers.recording_check import REFERENCE_STEPS, TIME_STEP_TOLERANCE, RecordingReader
 from bogiemon.drivers.recording_csv import GZIP_LEVEL, CsvRecordingReader, write_csv_recording
 from bogiemon.drivers.recording_format import (
@@ -69,6 +68,7 @@ from bogiemon.drivers.recording_format import (
     MAX_LINE_BYTES,
     MAX_RECORDING_BYTES,
     MIN_ACCEL_MPS2,
+    NEEDS_PYARROW,
     PARQUET_MAGIC,
     PARQUET_SUFFIX,
     RECORDING_FILE,
@@ -77,6 +77,7 @@ from bogiemon.drivers.recording_format import (
     RecordingFormat,
     WAGON_COLUMNS,
     WAGON_HEADER,
+    parquet_available,
     is_sample_recording_name,
     one_bogie,
     refuse_wagon,
@@ -85,31 +86,44 @@ from bogiemon.drivers.recording_parquet import MAX_PARQUET_GROUP_ROWS, PARQUET_G
 
 __all__ = [
     "ACCEL_LSB_MPS2", "COLUMNS", "COLUMN_SETS", "GZIP_LEVEL", "HEADER", "MAX_ACCEL_MPS2", "MAX_INFLATE_RATIO", "MAX_LINE_BYTES",
-    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC", "PARQUET_SUFFIX",
-    "RECORDING_FILE", "REFERENCE_STEPS", "TIME_STEP_TOLERANCE", "WAGON_COLUMNS", "WAGON_HEADER", "Recording", "RecordingError",
-    "RecordingFormat", "RecordingReader", "is_sample_recording_name", "one_bogie", "open_recording_reader", "read_csv_recording",
-    "read_recording", "refuse_wagon", "write_csv_recording", "write_parquet_recording", "write_recording",
+    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "NEEDS_PYARROW", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC",
+    "PARQUET_SUFFIX", "RECORDING_FILE", "REFERENCE_STEPS", "TIME_STEP_TOLERANCE", "WAGON_COLUMNS", "WAGON_HEADER", "Recording",
+    "RecordingError", "RecordingFormat", "RecordingReader", "is_sample_recording_name", "one_bogie", "open_recording_reader",
+    "parquet_available", "read_csv_recording", "read_recording", "refuse_wagon", "write_csv_recording", "write_parquet_recording",
+    "write_recording",
 ]  # fmt: skip
 
 
-def open_recording_reader(path: str | Path, min_samples: int = 2) -> RecordingReader:
+def open_recording_reader(path: str | Path | UntrustedFile, min_samples: int = 2) -> RecordingReader:
     """Open a recording (CSV, .csv.gz or Parquet, by its name or its first bytes) for reading.
+
+    path: a name, or a file already opened by open_untrusted (read through its descriptor, never
+    by its name again). The reader holds the file open until close().
 
     RecordingError naming the file for a file that cannot be read, is no recording, holds fewer
     than min_samples rows (a bad row in it named first), or whose times give no finite rate.
     """
-    path = Path(path)
-    with open_untrusted(path, RECORDING_FILE, RecordingError) as f:
-        parquet = path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and os.pread(f.fileno(), 4, 0) == PARQUET_MAGIC)
-    reader: RecordingReader = ParquetRecordingReader(path) if parquet else CsvRecordingReader(path)
-    reader.open(min_samples)
+    f = path.reopen(RECORDING_FILE) if isinstance(path, UntrustedFile) else open_untrusted(path, RECORDING_FILE, RecordingError)
+    try:
+        parquet = f.path.name.lower().endswith(PARQUET_SUFFIX) or (not f.compressed and f.head(4) == PARQUET_MAGIC)
+        if parquet and not parquet_available():
+            raise RecordingError(f"{f.path}: a Parquet recording {NEEDS_PYARROW}")
+        reader: RecordingReader = ParquetRecordingReader(f) if parquet else CsvRecordingReader(f)
+        reader.open(min_samples)
+    except BaseException:
+        f.close()
+        raise
     return reader
 
 
 def read_recording(path: str | Path, min_samples: int = 2) -> Recording:
     """Read and check a whole recording (CSV, .csv.gz or Parquet) into memory; RecordingError
     naming the file and line on any problem."""
-    return open_recording_reader(path, min_samples).read_all()
+    reader = open_recording_reader(path, min_samples)
+    try:
+        return reader.read_all()
+    finally:
+        reader.close()
 
 
 def read_csv_recording(path: str | Path, min_samples: int = 2) -> Recording:

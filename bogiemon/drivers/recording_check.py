@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import MAX_TIME_S
+from bogiemon.drivers.files import UntrustedFile
 from bogiemon.drivers.recording_format import COLUMNS, MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
 
 # A time step may deviate this much (relative) from the file's step: enough for times printed
@@ -34,6 +35,7 @@ class RecordingReader(ABC):
     """
 
     path: Path
+    file: UntrustedFile  # the checked descriptor: every pass reads through it, never the name
     format: str  # "csv" or "parquet"
     columns: tuple[str, ...] = COLUMNS  # its column set, found at the open: COLUMNS or a wagon's WAGON_COLUMNS
     n_samples: int
@@ -41,8 +43,14 @@ class RecordingReader(ABC):
     last_s: float  # the time of the last sample
     fs_hz: float
 
-    def __init__(self) -> None:
+    def __init__(self, file: UntrustedFile) -> None:
+        self.file = file
+        self.path = file.path
         self.clipped_samples = 0  # of the last pass of chunks(), so far
+
+    def close(self) -> None:
+        """Release the file (a pass still reading holds a descriptor of its own until it ends)."""
+        self.file.close()
 
     @property
     def duration_s(self) -> float:

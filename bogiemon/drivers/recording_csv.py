@@ -7,7 +7,7 @@ from __future__ import annotations
 import gzip
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -15,10 +15,12 @@ from typing import BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.files import UntrustedFile, open_untrusted, size_text
+from bogiemon.drivers.csv_rows import NUMBER, RowsError, parse_rows
+from bogiemon.drivers.files import UntrustedFile, size_text
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
 from bogiemon.drivers.recording_format import (
-    COLUMN_SETS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, WAGON_HEADER, RecordingError, arrow_columns, recording_rows,
+    COLUMN_SETS, COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, WAGON_HEADER, arrow_columns, recording_rows,
 )  # fmt: skip
 
 _ROW_FORMATS = {n: ",".join(["%.6f"] * (n + 1)) + "\n" for n in COLUMN_SETS}  # by the channels
@@ -30,7 +32,7 @@ GZIP_LEVEL = 6
 
 # A number as pyarrow's CSV reader takes it (spaces and tabs around it allowed): the slow path
 # that names a bad line must find the line pyarrow refused, not one Python's float() refuses.
-_NUMBER = re.compile(rb"[ \t]*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan(?:\([0-9A-Za-z_]*\))?|inf(?:inity)?)[ \t]*", re.I)
+_NUMBER = NUMBER  # numpy's parser (drivers/csv_rows.py) keeps to it too
 _NOT_BREAK = re.compile(rb"[^\r\n]+")
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 
@@ -40,13 +42,12 @@ class CsvRecordingReader(RecordingReader):
 
     format = "csv"
 
-    def __init__(self, path: Path) -> None:
-        super().__init__()
-        self.path = path
+    def __init__(self, file: UntrustedFile) -> None:
+        super().__init__(file)
         self._header_bytes = 0
 
     def open(self, min_samples: int) -> None:
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self.file.reopen() as f:
             first_chunk = f.read(MAX_LINE_BYTES + 2)
             end = re.search(rb"\r\n|\r|\n", first_chunk)
             header = first_chunk[: end.start()] if end else first_chunk
@@ -60,7 +61,7 @@ class CsvRecordingReader(RecordingReader):
                 self.error(f"not a text file: expected a CSV recording with header '{HEADER}'")
             if text.strip() not in _HEADERS:
                 _drain(f)
-                shown = text.strip()[:60] or "an empty line"
+                shown = quoted(text.strip()) or "an empty line"
                 self.error(f"line 1: expected the header '{HEADER}' (or '{WAGON_HEADER}': both bogies), found '{shown}'")
             self.columns = _HEADERS[text.strip()]
             survey = _survey(f, first_chunk[self._header_bytes :])
@@ -72,7 +73,7 @@ class CsvRecordingReader(RecordingReader):
 
     def _data_lines(self) -> Iterator[tuple[int, bytes]]:
         """(line number, bytes) of every line after the header."""
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self.file.reopen() as f:
             _skip(f, self._header_bytes)
             yield from f.lines(first_number=2)
 
@@ -87,28 +88,15 @@ class CsvRecordingReader(RecordingReader):
         raise AssertionError(f"row {row} not found in {self.path}")  # pragma: no cover - rows come from the file
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-
-        # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
-        # nothing of pyarrow's left running when the reading stops at a bad row.
-        read_options = pacsv.ReadOptions(column_names=list(self.columns), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
-        parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
-        convert_options = pacsv.ConvertOptions(
-            column_types=dict.fromkeys(self.columns, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
-        )
-        def parse(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-            for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
-                yield arrow_columns(batch)
-
+        parse, refused = _csv_parser(self.columns)
         number = 2  # the first line of the block
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self.file.reopen() as f:
             _skip(f, self._header_bytes)
             try:
                 for block in _line_blocks(f):
                     try:
                         yield from parse(block)
-                    except pa.ArrowInvalid as exc:
+                    except refused as exc:
                         if not block.strip(b"\r\n"):
                             continue  # blank lines alone: pyarrow calls that an empty file
                         # The rows before the bad line are used; then the error names it.
@@ -133,8 +121,42 @@ class CsvRecordingReader(RecordingReader):
             if found is None:
                 break
             start, number = found.end(), number + 1
-        cut = parse_error if len(parse_error) <= 200 else parse_error[:197] + "..."
-        return len(block), f"cannot parse the rows: {cut}"
+        return len(block), f"cannot parse the rows: {quoted(parse_error, 200)}"
+
+
+CsvParse = Callable[[bytes], Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]]
+
+
+def _csv_parser(columns: tuple[str, ...] = COLUMNS) -> tuple[CsvParse, type[Exception]]:
+    """The parser of a block of whole lines of the columns (a set of COLUMN_SETS), and what it
+    raises for a line that is no row: pyarrow's CSV reader where it is installed, else numpy's
+    (drivers/csv_rows.py: the same rows to the bits, the same lines refused; a gateway installs
+    without pyarrow)."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ModuleNotFoundError:
+
+        def parse_numpy(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+            rows = parse_rows(block, len(columns))
+            if rows.shape[0]:
+                yield np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1:])
+
+        return parse_numpy, RowsError
+
+    # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
+    # nothing of pyarrow's left running when the reading stops at a bad row.
+    read_options = pacsv.ReadOptions(column_names=list(columns), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
+    parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
+    convert_options = pacsv.ConvertOptions(
+        column_types=dict.fromkeys(columns, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
+    )
+
+    def parse_arrow(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
+            yield arrow_columns(batch)
+
+    return parse_arrow, pa.ArrowInvalid
 
 
 def _line_problem(line: bytes, columns: tuple[str, ...]) -> str | None:
@@ -149,7 +171,7 @@ def _line_problem(line: bytes, columns: tuple[str, ...]) -> str | None:
         return f"expected {len(columns)} comma-separated values ({','.join(columns)}), found {len(cells)}"
     for name, cell in zip(columns, cells, strict=True):
         if not _NUMBER.fullmatch(cell):
-            return f"{name} is not a number: '{cell.decode().strip()[:40]}'"
+            return f"{name} is not a number: '{quoted(cell.strip(), 40)}'"
     return None
 
 
@@ -257,20 +279,20 @@ def _drain(f: UntrustedFile) -> None:
 
 
 def write_csv_recording(
-    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False
+    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False, gzip_level: int = GZIP_LEVEL
 ) -> None:
     """Write a recording; times with microsecond resolution, accelerations with 6 decimals (1e-6 m/s^2).
 
-    A path ending in .gz is written gzip-compressed (no name and no time stamp in the gzip header:
-    the same samples give the same bytes). fsync: on the disk before this returns (a file about
-    to be renamed into place must be whole there first).
+    A path ending in .gz is written gzip-compressed at gzip_level (no name and no time stamp in the
+    gzip header: the same samples give the same bytes). fsync: on the disk before this returns (a
+    file about to be renamed into place must be whole there first).
     """
     path = Path(path)
     time_s, accel = recording_rows(time_s, accel_mps2)
     rows = np.column_stack([time_s, accel])
     with path.open("wb") as raw:
         if path.name.lower().endswith(".gz"):
-            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=GZIP_LEVEL, mtime=0) as packed:
+            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=gzip_level, mtime=0) as packed:
                 _write_rows(packed, rows)  # closing the gzip stream writes its trailer, and leaves `raw` open
         else:
             _write_rows(raw, rows)
@@ -280,13 +302,16 @@ def write_csv_recording(
 
 
 def _write_rows(f: BinaryIO | gzip.GzipFile, rows: NDArray[np.float64]) -> None:
-    channels = rows.shape[1] - 1
-    f.write((",".join(COLUMN_SETS[channels]) + "\n").encode("ascii"))
-    row_format = _ROW_FORMATS[channels]
-    # Exactly np.savetxt(fmt="%.6f")'s text (the same printf formatting), but one %-format call
-    # per chunk of rows instead of one per row: 1.6x faster (3.7 s -> 2.3 s for an hour at 500 Hz
-    # here), memory bounded by the chunk. The text is ASCII: digits, signs, points and commas.
+    f.write((",".join(COLUMN_SETS[rows.shape[1] - 1]) + "\n").encode("ascii"))
     for start in range(0, rows.shape[0], _WRITE_CHUNK_ROWS):
-        chunk = rows[start : start + _WRITE_CHUNK_ROWS]
-        f.write(((row_format * chunk.shape[0]) % tuple(chunk.ravel().tolist())).encode("ascii"))
+        f.write(format_rows(rows[start : start + _WRITE_CHUNK_ROWS]))
+
+
+def format_rows(rows: NDArray[np.float64]) -> bytes:
+    """Rows (m, 4) of a recording, or (m, 7) of a wagon's, as its CSV text, 6 decimals.
+
+    Exactly np.savetxt(fmt="%.6f")'s text (the same printf formatting), but one %-format call per
+    chunk of rows instead of one per row: 1.6x faster (3.7 s -> 2.3 s for an hour at 500 Hz here).
+    The text is ASCII: digits, signs, points and commas."""
+    return ((_ROW_FORMATS[rows.shape[1] - 1] * rows.shape[0]) % tuple(rows.ravel().tolist())).encode("ascii")
 

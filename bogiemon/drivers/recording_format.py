@@ -6,6 +6,7 @@ recording_parquet.py, the checks of every row in recording_check.py)."""
 from __future__ import annotations
 
 import enum
+import importlib.util
 from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +17,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block, Source
 from bogiemon.drivers.files import FileKind
+from bogiemon.drivers.quoting import quoted
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -71,6 +73,15 @@ class RecordingFormat(enum.StrEnum):
 
 class RecordingError(ValueError):
     """A recording that cannot be used; the message names the file, the line and the remedy."""
+
+
+# Parquet is pyarrow's, which a gateway may be installed without (CSV is read either way).
+NEEDS_PYARROW = "needs pyarrow, which this install leaves out: pip install 'bogiemon[recordings]', or use CSV (.csv.gz)"
+
+
+def parquet_available() -> bool:
+    """Whether pyarrow, which Parquet recordings need, is installed (and not hidden, as a test hides it)."""
+    return importlib.util.find_spec("pyarrow") is not None
 
 
 def refuse_wagon(path: str | Path, bogies: int, command: str) -> None:
@@ -163,9 +174,9 @@ def _numpy(column: pa.Array) -> NDArray[np.float64]:
 
 
 def short_error(exc: BaseException, limit: int = 200) -> str:
-    """An exception's message for a one-line error, cut to `limit` characters."""
-    text = str(exc) or type(exc).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    """An exception's message for a one-line error, cut to `limit` characters and quoted (a
+    library's message may quote the file)."""
+    return quoted(str(exc) or type(exc).__name__, limit)
 
 
 def recording_rows(time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

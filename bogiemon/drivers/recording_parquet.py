@@ -11,9 +11,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.files import UntrustedFile, open_untrusted
+from bogiemon.drivers.files import UntrustedFile
+from bogiemon.drivers.parquet_pages import ParquetBoundsError, check_pages, read_footer
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMN_SETS, COLUMNS, RECORDING_FILE, WAGON_COLUMNS, RecordingError, arrow_columns, recording_rows, short_error
+from bogiemon.drivers.recording_format import COLUMN_SETS, COLUMNS, NEEDS_PYARROW, WAGON_COLUMNS, RECORDING_FILE, RecordingError, arrow_columns, parquet_available, recording_rows, short_error
 
 if TYPE_CHECKING:
     import pyarrow.parquet as pq
@@ -32,9 +34,9 @@ class ParquetRecordingReader(RecordingReader):
 
     format = "parquet"
 
-    def __init__(self, path: Path) -> None:
-        super().__init__()
-        self.path = path
+    def __init__(self, file: UntrustedFile) -> None:
+        super().__init__(file)
+        self._pf: pq.ParquetFile | None = None
 
     def where(self, row: int) -> str:
         return f"row {row + 1}"
@@ -46,6 +48,15 @@ class ParquetRecordingReader(RecordingReader):
         if f.compressed:
             self.error("a Parquet recording compresses its own columns: store it as .parquet, not gzip-compressed")
         try:
+            # The pages' own headers, before pyarrow inflates any (drivers/parquet_pages.py).
+            groups = read_footer(f.fileno(), f.size_bytes)
+            # The column set the chunks name: a wagon's pages are checked, and allowed, for its seven columns.
+            present = {chunk.name for group in groups for chunk in group.columns}
+            columns = WAGON_COLUMNS if set(WAGON_COLUMNS) <= present else COLUMNS
+            check_pages(f.fileno(), f.size_bytes, groups, columns, _PARQUET_BYTES_PER_VALUE)
+        except ParquetBoundsError as exc:
+            self.error(f"not a readable Parquet file ({exc}: damaged, or a compression bomb); {RECORDING_FILE.description}")
+        try:
             return pq.ParquetFile(
                 f, thrift_string_size_limit=_PARQUET_FOOTER_LIMIT, thrift_container_size_limit=_PARQUET_FOOTER_LIMIT
             )
@@ -55,66 +66,71 @@ class ParquetRecordingReader(RecordingReader):
     def open(self, min_samples: int) -> None:
         import pyarrow as pa
 
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
-            pf = self._open_file(f)
-            schema = pf.schema_arrow
-            names = tuple(schema.names)
-            if names not in COLUMN_SETS.values() or any(t != pa.float64() for t in schema.types):
-                found = ", ".join(f"{n} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
+        # The file stays open: every pass reads its row groups through the one descriptor.
+        pf = self._pf = self._open_file(self.file)
+        schema = pf.schema_arrow
+        names = tuple(schema.names)
+        if names not in COLUMN_SETS.values() or any(t != pa.float64() for t in schema.types):
+            found = ", ".join(f"{quoted(n, 40)} {t}" for n, t in zip(schema.names[:8], schema.types[:8], strict=False))
+            self.error(
+                f"expected the float64 columns {', '.join(COLUMNS)} (or {', '.join(WAGON_COLUMNS)}: both bogies), "
+                f"found {found or 'none'}"
+            )
+        self.columns = names
+        meta = pf.metadata
+        for i in range(meta.num_row_groups):
+            group = meta.row_group(i)
+            if group.num_rows > MAX_PARQUET_GROUP_ROWS:
                 self.error(
-                    f"expected the float64 columns {', '.join(COLUMNS)} (or {', '.join(WAGON_COLUMNS)}: both bogies), "
-                    f"found {found or 'none'}"
+                    f"row group {i} holds {group.num_rows} rows, more than {MAX_PARQUET_GROUP_ROWS}; "
+                    f"write it in row groups of at most that (write_parquet_recording uses {PARQUET_GROUP_ROWS})"
                 )
-            self.columns = names
-            meta = pf.metadata
-            for i in range(meta.num_row_groups):
-                group = meta.row_group(i)
-                if group.num_rows > MAX_PARQUET_GROUP_ROWS:
-                    self.error(
-                        f"row group {i} holds {group.num_rows} rows, more than {MAX_PARQUET_GROUP_ROWS}; "
-                        f"write it in row groups of at most that (write_parquet_recording uses {PARQUET_GROUP_ROWS})"
-                    )
-                # The row group's own total, never its columns' metadata: pyarrow 26 aborts the process
-                # (a C++ exception let out of RowGroupMetaData.column()) on a column chunk whose
-                # statistics carry a definition-level histogram of the wrong size (found by make fuzz).
-                declared = group.total_byte_size
-                if declared > len(self.columns) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
-                    self.error(f"row group {i} declares {declared} bytes for {group.num_rows} rows: damaged, or no recording")
-            self.n_samples = meta.num_rows
-            first_s = last_s = None
-            groups = [i for i in range(meta.num_row_groups) if meta.row_group(i).num_rows]
-            if groups:
-                try:
-                    first = pf.read_row_group(groups[0], columns=["time_s"]).column(0)
-                    last = pf.read_row_group(groups[-1], columns=["time_s"]).column(0)
-                except (pa.ArrowException, OSError) as exc:
-                    self.error(f"not a readable Parquet file ({short_error(exc)}); {RECORDING_FILE.description}")
-                # A footer may claim rows its pages do not hold (found by make fuzz: an IndexError here).
-                for i, column in ((groups[0], first), (groups[-1], last)):
-                    if len(column) != meta.row_group(i).num_rows:
-                        self.error(f"row group {i} holds {len(column)} rows, its footer says {meta.row_group(i).num_rows}: damaged; copy it again")
-                first_s = first[0].as_py()
-                last_s = last[len(last) - 1].as_py()  # None if null: the rows are read through for it
+            # The row group's own total, never its columns' metadata: pyarrow 26 aborts the process
+            # (a C++ exception let out of RowGroupMetaData.column()) on a column chunk whose
+            # statistics carry a definition-level histogram of the wrong size (found by make fuzz).
+            declared = group.total_byte_size
+            if declared > len(self.columns) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
+                self.error(f"row group {i} declares {declared} bytes for {group.num_rows} rows: damaged, or no recording")
+        self.n_samples = meta.num_rows
+        first_s = last_s = None
+        groups = [i for i in range(meta.num_row_groups) if meta.row_group(i).num_rows]
+        if groups:
+            try:
+                first = pf.read_row_group(groups[0], columns=["time_s"]).column(0)
+                last = pf.read_row_group(groups[-1], columns=["time_s"]).column(0)
+            except (pa.ArrowException, OSError) as exc:
+                self.error(f"not a readable Parquet file ({short_error(exc)}); {RECORDING_FILE.description}")
+            # A footer may claim rows its pages do not hold (found by make fuzz: an IndexError here).
+            for i, column in ((groups[0], first), (groups[-1], last)):
+                if len(column) != meta.row_group(i).num_rows:
+                    self.error(f"row group {i} holds {len(column)} rows, its footer says {meta.row_group(i).num_rows}: damaged; copy it again")
+            first_s = first[0].as_py()
+            last_s = last[len(last) - 1].as_py()  # None if null: the rows are read through for it
         self._check_whole(min_samples, first_s, last_s)
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
         import pyarrow as pa
 
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
-            pf = self._open_file(f)
-            row = 0
-            for i in range(pf.metadata.num_row_groups):
-                try:
-                    table = pf.read_row_group(i, use_threads=False)
-                except (pa.ArrowException, OSError) as exc:
-                    self.error(f"row group {i}: not readable ({short_error(exc)}); the recording is damaged: copy it again")
-                if table.num_rows:
-                    if any(column.null_count for column in table.columns):
-                        nulls = np.flatnonzero(np.any([column.is_null().to_numpy(zero_copy_only=False) for column in table.columns], axis=0))
-                        self.row_error(row + int(nulls[0]), "a value is missing (null); remove or repair the row")
-                    for batch in table.to_batches():
-                        yield arrow_columns(batch)
-                row += table.num_rows
+        pf = self._pf
+        assert pf is not None, "opened by open_recording_reader"
+        row = 0
+        for i in range(pf.metadata.num_row_groups):
+            try:
+                table = pf.read_row_group(i, use_threads=False)
+            except (pa.ArrowException, OSError) as exc:
+                self.error(f"row group {i}: not readable ({short_error(exc)}); the recording is damaged: copy it again")
+            if table.num_rows:
+                if any(column.null_count for column in table.columns):
+                    nulls = np.flatnonzero(np.any([column.is_null().to_numpy(zero_copy_only=False) for column in table.columns], axis=0))
+                    self.row_error(row + int(nulls[0]), "a value is missing (null); remove or repair the row")
+                for batch in table.to_batches():
+                    yield arrow_columns(batch)
+            row += table.num_rows
+
+
+def parquet_options(columns: tuple[str, ...] = COLUMNS) -> dict[str, object]:
+    """How a recording's columns are written (the writer's and a streaming ParquetWriter's)."""
+    return {"compression": "zstd", "use_dictionary": list(columns[1:]), "use_byte_stream_split": [columns[0]]}
 
 
 def write_parquet_recording(
@@ -127,18 +143,17 @@ def write_parquet_recording(
     bytes repeat); both then zstd. The same samples give the same bytes (with the same pyarrow).
     fsync: on the disk before this returns.
     """
+    if not parquet_available():
+        raise RecordingError(f"{path}: writing a Parquet recording {NEEDS_PYARROW}")
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     time_s, accel = recording_rows(time_s, accel_mps2)
-    columns = COLUMN_SETS[accel.shape[1]]
+    columns = COLUMN_SETS[accel.shape[1]]  # a wagon's recording: time_s,a1,a2,a3,b1,b2,b3
     schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in columns])
     table = pa.Table.from_arrays([pa.array(time_s), *(pa.array(np.ascontiguousarray(accel[:, i])) for i in range(accel.shape[1]))], schema=schema)
     with Path(path).open("wb") as raw:
-        pq.write_table(
-            table, raw, row_group_size=PARQUET_GROUP_ROWS, compression="zstd",
-            use_dictionary=list(columns[1:]), use_byte_stream_split=[columns[0]],
-        )  # fmt: skip
+        pq.write_table(table, raw, row_group_size=PARQUET_GROUP_ROWS, **parquet_options(columns))
         if fsync:
             raw.flush()
             os.fsync(raw.fileno())

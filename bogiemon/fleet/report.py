@@ -14,9 +14,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from html import escape
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bogiemon.daemon.messages import EventMessage
 from bogiemon.judgement.events import SensorFaultDetails
 from bogiemon.drivers.atomic import write_bytes_atomically
 from bogiemon.fleet import svg
@@ -25,6 +24,9 @@ from bogiemon.fleet.judged_files import EVENT_KINDS, STATES, Judged, ReportError
 from bogiemon.fleet.plot import (
     ALARM_COLOUR, EVENT_COLOURS, EVENT_TEXT_COLOURS, MAX_IDLE_S, SCORE_COLOUR, STATE_COLOURS, TREND_COLOUR, WARNING_COLOUR, wagon_plot,
 )  # fmt: skip
+
+if TYPE_CHECKING:  # pydantic's models are built only when events are read (read_judged)
+    from bogiemon.daemon.messages import EventMessage
 
 MAX_EVENTS_LISTED = 200  # per wagon section; the plot marks every event
 

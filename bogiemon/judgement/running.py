@@ -115,7 +115,13 @@ def choose_load(
         return _against(LoadChoice(closest.load, LoadSource.COMMISSIONED), closest, x, excitation_mps2)
     if model is None:
         raise ValueError("load 'auto' needs the load model")
-    p_full = model.probability_of(x) if x is not None else math.nan
+    if x is None:
+        return LoadChoice(None, LoadSource.ESTIMATED, unjudged="no load vector: a mode had no power")
+    p_full = model.probability_of(x)
+    if not math.isfinite(p_full):
+        # NaN is neither side of 0.5: a comparison would make it tare, and an empty wagon's levels
+        # are not a loaded one's. What cannot be told is not judged.
+        return LoadChoice(None, LoadSource.ESTIMATED, unjudged="the load model cannot tell the load: its P(full) is not a number")
     # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on the
     # simulated fleets (docs/robust/README.md): no third state is needed.
     estimated = LoadState.FULL if p_full >= 0.5 else LoadState.TARE

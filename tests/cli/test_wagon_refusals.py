@@ -1,6 +1,7 @@
 """The commands that read one bogie today refuse a wagon's recording (time_s,a1,a2,a3,b1,b2,b3) in one
 line naming the file and the command, exit 2, rather than misread its columns: analyze, calibrate,
-replay, play, run (and its recorder) and fleet analyze. Real files; run as a real process."""
+replay, play, run (and its recorder; check-config as run) and fleet analyze. Real files; run as a
+real process."""
 
 from __future__ import annotations
 
@@ -94,3 +95,12 @@ def test_fleet_analyze_names_a_wagons_recording_as_skipped_and_analyses_the_rest
                      "give it one bogie's recording (time_s,a1,a2,a3)"),
     ]  # fmt: skip
     assert result.windows == 0
+
+
+def test_check_config_refuses_a_replay_source_of_a_wagons_recording_as_run_would(
+    wagon: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "bogiemon.toml"
+    config.write_text(f'[source]\nkind = "replay"\npath = "{wagon}"\n')
+    assert main(["check-config", str(config)]) == 2
+    assert capsys.readouterr().err == f"bogiemon: error: {refusal(wagon, 'run')}\n"

@@ -273,6 +273,28 @@ def test_periodic_recordings_hold_the_periodic_s_after_every_period_of_running(t
         np.testing.assert_allclose(rec.accel_mps2, accel[first : first + 300], rtol=0, atol=ACCEL_TOLERANCE_MPS2)
 
 
+def test_periodic_recordings_keep_their_period_when_a_block_holds_the_end_of_one_and_the_start_of_the_next(tmp_path: Path) -> None:
+    # The fuzz finding (recorder-disk, seed 17 input 182): blocks of 2 s, a recording of 2.6 s every
+    # 3.34 s. The next one started only in the block after the last one ended, later each time,
+    # until a period passed without one: 13 written for 15 periods.
+    accel = bogie_accel(51, seed=1)
+    period_n = 333 + 0.618  # samples: never a sample's time exactly
+    extra = f"periodic_every_h = {period_n / FS_HZ / 3600!r}\nperiodic_s = 2.6\n"
+    run = Run(tmp_path, recorder_config(tmp_path / "rec", extra))
+    for block in as_blocks(accel, start_s=START_S, block_n=200):
+        run.feed([block])
+        assert run.recorder.wait_written()  # a queue of 4 would drop some, as fast as they come here
+    run.recorder.close()
+    names = recordings(tmp_path / "rec")
+    firsts = [int(np.ceil(k * period_n)) for k in range(1, 16)]  # the first sample after every period
+    assert len(names) == run.recorder.counters.periodic_written == 15
+    for first, name in zip(firsts, names, strict=True):
+        rec = read_csv_recording(tmp_path / "rec" / name)
+        n = min(260, accel.shape[0] - first)
+        np.testing.assert_allclose(rec.time_s, START_S + np.arange(first, first + n) / FS_HZ, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(rec.accel_mps2, accel[first : first + n], rtol=0, atol=ACCEL_TOLERANCE_MPS2)
+
+
 def test_a_periodic_recording_cut_by_a_gap_is_written_up_to_it(tmp_path: Path) -> None:
     accel = bogie_accel(10, seed=1)
     blocks = as_blocks(accel, start_s=START_S, gap_at={800})  # a gap at 8 s, inside the recording from 7.2 s

@@ -39,6 +39,16 @@ def test_the_gz_writer_compresses_the_plain_writers_text(tmp_path: Path) -> None
     assert gzip.decompress((tmp_path / "r.csv.gz").read_bytes()) == (tmp_path / "r.csv").read_bytes()
 
 
+@pytest.mark.parametrize(("level", "xfl"), [(1, 4), (9, 2)])  # gzip's header says fastest (4) or best (2)
+def test_the_gz_writer_at_another_level_compresses_the_same_text_at_that_level(tmp_path: Path, level: int, xfl: int) -> None:
+    t, a = samples(100)
+    write_csv_recording(tmp_path / "r.csv", t, a)
+    write_csv_recording(tmp_path / "r.csv.gz", t, a, gzip_level=level)
+    packed = (tmp_path / "r.csv.gz").read_bytes()
+    assert packed[8] == xfl
+    assert gzip.decompress(packed) == (tmp_path / "r.csv").read_bytes()
+
+
 def test_the_same_samples_give_the_same_gz_bytes(tmp_path: Path) -> None:
     t, a = samples(100)
     write_csv_recording(tmp_path / "a.csv.gz", t, a)

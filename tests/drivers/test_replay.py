@@ -17,7 +17,8 @@ import pytest
 from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import MAX_ACCEL_MPS2, RecordingError, read_recording, write_csv_recording, write_parquet_recording
-from bogiemon.drivers.replay import MAX_PACED_PAUSE_S, CanLogReplaySource, CsvReplaySource, open_replay
+from bogiemon.drivers.replay import CsvReplaySource, open_replay
+from bogiemon.drivers.replay_can import MAX_PACED_PAUSE_S, CanLogReplaySource
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, check_blocks, coded_accel, layout_frames, write_recording
 
 
@@ -127,7 +128,7 @@ def test_a_truncated_log_line_ends_the_replay_counted_not_raised(tmp_path: Path)
 
 @pytest.mark.parametrize(
     ("name", "message"),
-    [("run.mp3", r"run.mp3: not a recording bogiemon replays"), ("missing.log", r"missing.log: cannot read the CAN log")],
+    [("run.mp3", r"run.mp3: not a recording bogiemon replays"), ("missing.log", r"missing.log: cannot read the recording: No such file")],
 )
 def test_an_unusable_replay_file_is_named_in_one_line(tmp_path: Path, name: str, message: str) -> None:
     if name.endswith(".mp3"):

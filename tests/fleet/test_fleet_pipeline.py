@@ -43,6 +43,22 @@ def client():
     cluster.close()
 
 
+def _worker_settings() -> tuple[str | None, bool, float]:
+    import os
+
+    import dask.config
+    from dask.utils import parse_timedelta
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled"), parse_timedelta(dask.config.get("distributed.admin.tick.interval"))
+
+
+def test_the_local_clusters_workers_keep_glibcs_dynamic_mmap_threshold_and_sample_no_profile(client) -> None:
+    import os
+
+    assert set(client.run(_worker_settings).values()) == {(None, False, 1.0)}
+    assert "MALLOC_TRIM_THRESHOLD_" not in os.environ  # nor set here, in the cluster's process, for what it starts later
+
+
 def _fleet(root: Path, runs: tree.Runs) -> dict[str, list[Path]]:
     """W1 (commissioned): a healthy day, then a day where the spring breaks; W2 healthy, not commissioned."""
     w1, w2 = tree.wagon(root, "W1", commissioned=True), tree.wagon(root, "W2", commissioned=False)

@@ -11,6 +11,7 @@ from bogiemon.daemon.config import ConfigError, parse_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.messages import OutboxStatus, StatusMessage
 from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.startup import Snapshot
 from bogiemon.daemon.store import EventStore
 from tests.daemon.delivery.support import WAGON
 
@@ -22,14 +23,22 @@ def test_a_reload_restarts_only_the_delivery_parts_whose_settings_changed(tmp_pa
     monitor = Monitor(config.monitor_settings(), EventStore(tmp_path), [])
     delivery = Delivery(tmp_path)
     delivery.start(config, monitor)
+    running = Snapshot.of(config)
+
+    def reload(text: str) -> None:
+        nonlocal running
+        new = Snapshot.of(parse_config(text, "t"))
+        delivery.apply(new.config, running.changed(new))
+        running = new
+
     try:
         first = delivery.publisher
         assert first is not None and first.is_alive() and delivery.can_sink is None
-        delivery.apply(parse_config(base + mqtt + "[processing]\nwindow_s = 120.0\nhop_s = 20.0\n[decision]\nmethod = \"thresholds\"\n", "t"))
+        reload(base + mqtt + "[processing]\nwindow_s = 120.0\nhop_s = 20.0\n[decision]\nmethod = \"thresholds\"\n")
         assert delivery.publisher is first  # nothing of its own changed
-        delivery.apply(parse_config(base + mqtt.replace("port = 9", "port = 10"), "t"))
+        reload(base + mqtt.replace("port = 9", "port = 10"))
         assert delivery.publisher is not first and not first.is_alive()
-        delivery.apply(parse_config(base, "t"))
+        reload(base)
         assert delivery.publisher is None
     finally:
         delivery.close()
