@@ -1,4 +1,5 @@
-"""`bogiemon simulate -o FILE.csv [...]`: a simulated recording of the monitored (leading) bogie, with its sidecar."""
+"""`bogiemon simulate -o FILE.csv [--bogies 2] [...]`: a simulated recording of the monitored (leading) bogie, or
+of the whole wagon's two bogies, with its sidecar."""
 
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "simulate",
         help="simulate a Y25 wagon and write a CSV recording of the leading bogie's three sensors",
         description="Simulate the vertical dynamics of a Y25 wagon on random track and write the three "
-        "accelerometers of its leading bogie as a CSV recording (FILE.csv) with the whole scenario "
-        "in FILE.json. Sensor corners, spacing and sample rate come from the config.",
+        "accelerometers of its leading bogie (--bogies 2: of both bogies) as a CSV recording (FILE.csv) "
+        "with the whole scenario in FILE.json. Sensor corners, spacing and sample rate come from the config.",
     )
     p.add_argument("-o", "--output", required=True, metavar="FILE.csv", help="recording to write (sidecar: FILE.json)")
     p.add_argument("--load", choices=("full", "tare"), default="full", help="carbody 80.6 t or 6.86 t (default full)")
@@ -42,9 +43,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         default=[],
         metavar="SPEC",
         help="KIND:POSITION:SEVERITY@CORNER, repeatable: type_a:rear_outer:0.0@leading-left, "
-        "type_b::0.5@trailing-right, custom:KZ_N_PER_M:FS_N@leading-right; prefix the corner "
-        "with trailing-bogie: for the wagon's other bogie",
+        "type_b::0.5@trailing-right, custom:KZ_N_PER_M:FS_N@leading-right; @2:CORNER for the wagon's "
+        "other bogie (type_a:rear_outer:0.0@2:leading-left)",
     )
+    p.add_argument("--bogies", type=int, choices=(1, 2), default=1,
+                   help="bogies recorded: 1, the leading bogie (time_s,a1,a2,a3, default), or 2, the whole wagon "
+                        "(time_s,a1,a2,a3,b1,b2,b3: b1..b3 at the same corners of bogie 2's frame)")  # fmt: skip
     p.add_argument("--fault-at-s", type=float, default=0.0, metavar="T",
                    help="the faults appear T seconds into the recording, healthy before (default 0: from the start)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the track and the sensor noise (default 0)")
@@ -84,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         sensor=SensorModel(noise_mps2=args.noise_mps2, bias_mps2=tuple(args.bias_mps2), quantum_mps2=args.quantum_mps2),
         max_step_s=args.max_step_s,
         model=args.model,
+        bogies=args.bogies,
     )
     # The simulator's kernel (numba) once the scenario is known to be one: a bad argument is told
     # without loading it.
@@ -106,6 +111,6 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{args.output}: {scenario.n_samples} samples at {scenario.fs_hz:g} Hz ({scenario.duration_s:g} s), "
             f"{scenario.load} load, {speed.spec()} km/h on {scenario.track}, seed {scenario.seed}, {faults}, "
-            f"model {scenario.model}; scenario in {sidecar}"
+            f"model {scenario.model}{', both bogies' if scenario.bogies == 2 else ''}; scenario in {sidecar}"
         )
     return 0

@@ -19,7 +19,7 @@ from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.daemon.sources import open_replay_source, recording_settings
 from bogiemon.detection import WindowIndicators
 from bogiemon.drivers.base import Block, EndOfStream, Source
-from bogiemon.drivers.recording import Recording, RecordingReader, follows_gap
+from bogiemon.drivers.recording import Recording, RecordingReader, follows_gap, one_bogie, refuse_wagon
 
 __all__ = ["ANALYSIS_BLOCK_S", "analyze_recording", "describe_source", "indicators_as_dict", "open_recording", "read_ahead", "recording_settings"]
 from bogiemon.judgement.windowing import BlockWindows
@@ -29,11 +29,12 @@ from bogiemon.judgement.windowing import BlockWindows
 ANALYSIS_BLOCK_S = 10.0
 
 
-def open_recording(path: str | Path, config: BogiemonConfig) -> Source:
+def open_recording(path: str | Path, config: BogiemonConfig, command: str = "analyze") -> Source:
     """Open a recording or a CAN log for analysis, as `replay` and `run` open it ([source]'s
-    layout, DBC, mapping and unit; unpaced), and check the config can analyse it: its rate, and at
-    least one window of a recording of samples (a bad row in a file too short is named first)."""
-    source = open_replay_source(path, config, max_block_s=ANALYSIS_BLOCK_S)
+    layout, DBC, mapping and unit; unpaced), and check the config can analyse it: one bogie's (a
+    wagon's recording is refused, naming the command), its rate, and at least one window of a
+    recording of samples (a bad row in a file too short is named first)."""
+    source = one_bogie(open_replay_source(path, config, max_block_s=ANALYSIS_BLOCK_S), path, command)
     try:
         settings = recording_settings(path, source.fs_hz, config)
         reader = getattr(source, "reader", None)
@@ -66,6 +67,7 @@ def analyze_recording(
     A source or a reader raises RecordingError at a bad row, after the windows that end before it.
     """
     path = getattr(recording, "path", "recording")
+    refuse_wagon(path, recording.bogies, "analyze")  # the core takes one bogie's (n, 3): b1..b3 would be misread
     clip = config.health.clip_level_mps2 if clip_level_mps2 is None else clip_level_mps2
     windows = BlockWindows(lambda fs_hz: recording_settings(path, fs_hz, config), config.bogie_geometry(), clip)
     for block in read_ahead(_blocks(recording)):

@@ -144,7 +144,7 @@ def calibrate(
     windows: list[WindowIndicators] = []
     runs: list[int] = []
     for number, path in enumerate(paths):
-        recording = open_recording(path, config)
+        recording = open_recording(path, config, "calibrate")
         these = list(analyze_recording(recording, config, clip_level_mps2=health.clip_level_mps2))
         windows += these
         runs += [number] * len(these)

@@ -31,7 +31,7 @@ from bogiemon.daemon.sinks import EventSink
 from bogiemon.daemon.sources import duty_cycled, open_source, replay_source_config
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.base import Source
-from bogiemon.drivers.recording import RecordingError
+from bogiemon.drivers.recording import RecordingError, one_bogie
 
 # What a source skipped, by counter, in the words of a summary (singular, plural).
 SKIPPED = (
@@ -101,7 +101,7 @@ def replay(
             for path in paths:
                 replay = replay_source_config(path, config, realtime)
                 run_config = config.model_copy(update={"source": replay})
-                source = open_source(run_config)
+                source = one_bogie(open_source(run_config), path, "replay")
                 if duty:
                     source = duty_cycled(source, config)
                 try:

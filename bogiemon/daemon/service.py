@@ -33,7 +33,7 @@ from bogiemon.daemon.startup import Snapshot, check_start
 from bogiemon.daemon.statedir import give_back
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
-from bogiemon.drivers.recording import RecordingError
+from bogiemon.drivers.recording import RecordingError, one_bogie
 
 SourceFactory = Callable[[BogiemonConfig], Source]
 STATUS_PERIOD_S = 10.0
@@ -228,7 +228,8 @@ class Service:
         return EXIT_INTERNAL_ERROR if pipeline.error is not None else EXIT_OK
 
     def _start_pipeline(self, monitor: Monitor) -> Pipeline:
-        source = self.source_factory(self.config)
+        # The pipeline, the monitor and the recorder read one bogie today: a wagon's recording is refused.
+        source = one_bogie(self.source_factory(self.config), getattr(self.config.source, "path", "[source]"), "run")
         capacity_n = max(1, int(self.config.pipeline.ring_capacity_s * source.fs_hz))
         ring = BlockRing(capacity_n, backpressure=source.finite)
         pipeline = Pipeline(source, monitor, ring)

@@ -75,10 +75,13 @@ def check_start(config: BogiemonConfig) -> list[str]:
     from bogiemon.daemon.sources import open_source
     from bogiemon.daemon.store import DB_NAME, EventStore
     from bogiemon.drivers.candb import load_layout
+    from bogiemon.drivers.recording import one_bogie
 
     src = config.source
     if isinstance(src, ReplaySourceConfig):
-        open_source(config).close()  # the recording's header, its rate against the config, its DBC
+        # The recording's header, its rate against the config, its DBC; a wagon's recording is
+        # refused (the pipeline reads one bogie today), before anything is opened for writing.
+        one_bogie(open_source(config), src.path, "run").close()
     elif isinstance(src, CanSourceConfig | SimulatedSourceConfig):
         load_layout(src.dbc_path or None, src.layout)
     if config.can_alarms.enabled:

@@ -51,7 +51,10 @@ class Block:
     status: per sensor, the status bits seen in this block;
     new_stream: the block begins another stream on purpose (a duty cycle's measurement after a
       rest, daemon/duty.py): a new segment, as after gap_before, but no loss that the dropouts
-      check counts.
+      check counts;
+    bogie: which of the wagon's bogies the sensors are on, 0 the first ([[bogie]] tables in their
+      order; a one-bogie source's blocks are all 0). Each bogie's blocks are a stream of their own:
+      gap_before, new_stream and the times are within it.
     """
 
     start_s: float
@@ -60,10 +63,13 @@ class Block:
     gap_before: bool = False
     status: tuple[SensorStatus, SensorStatus, SensorStatus] = ALL_OK
     new_stream: bool = False
+    bogie: int = 0
 
     def __post_init__(self) -> None:
         if self.accel_mps2.ndim != 2 or self.accel_mps2.shape[1] != 3:
             raise ValueError(f"a block holds (n, 3) samples, got shape {self.accel_mps2.shape}")
+        if self.bogie < 0:
+            raise ValueError(f"a block of bogie {self.bogie}: bogies count from 0")
         # The sources validate time stamps where they read them (a segment's samples may then run
         # past MAX_TIME_S by its length); a block past that with a time or rate that is not
         # finite is a bug in a driver, and must not reach windows and events.
@@ -120,6 +126,9 @@ class Source(ABC):
     finite: bool = False
     # At rest on purpose (a duty cycle, daemon/duty.py): it delivers nothing and is not stalled.
     resting: bool = False
+    # The bogies whose blocks it gives (Block.bogie 0 .. bogies - 1): 2 for a wagon's recording or
+    # a CAN bus carrying both bogies' frames.
+    bogies: int = 1
 
     @abstractmethod
     def read(self, timeout_s: float) -> Block | None:

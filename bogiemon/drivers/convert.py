@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block, EndOfStream, Source
 from bogiemon.drivers.recording_csv import GZIP_LEVEL, format_rows
-from bogiemon.drivers.recording_format import COLUMNS, HEADER, PARQUET_SUFFIX, RecordingError
+from bogiemon.drivers.recording_format import COLUMN_SETS, PARQUET_SUFFIX, RecordingError, one_bogie
 
 if TYPE_CHECKING:  # cantools loads with a candump output only
     from bogiemon.drivers.candb import CanLayout
@@ -32,7 +32,7 @@ OUTPUT_SUFFIXES = (".csv", ".csv.gz", PARQUET_SUFFIX, ".log")
 
 
 class _Writer(Protocol):
-    def write(self, block: Block) -> None: ...
+    def write(self, block: Block, accel_mps2: NDArray[np.float64]) -> None: ...  # the block's times, its stretch's samples
     def close(self) -> None: ...
 
 
@@ -58,18 +58,24 @@ def output_kind(path: str | Path) -> str:
 def convert(source: Source, out: str | Path, layout: CanLayout | None = None, progress: Callable[[float], None] | None = None,
             channel: str = "can0") -> ConvertStats:  # fmt: skip
     """Write every block of source to out (its kind by its name), then close the source; the
-    output appears whole or not at all (written beside it, then renamed)."""
+    output appears whole or not at all (written beside it, then renamed).
+
+    A wagon's recording (source.bogies 2: each stretch as bogie 1's block, then bogie 2's) is
+    written as a wagon's recording (time_s,a1,a2,a3,b1,b2,b3); a candump log holds one bogie's
+    frames (the DBC's) and refuses it."""
     kind = output_kind(out)
     out = Path(out)
     partial = out.with_name(f".{out.name}.partial")
+    columns = COLUMN_SETS[3 * source.bogies]
     writer: _Writer
     if kind == "csv":
-        writer = _CsvWriter(partial, out.name.lower().endswith(".gz"))
+        writer = _CsvWriter(partial, out.name.lower().endswith(".gz"), columns)
     elif kind == "parquet":
-        writer = _ParquetWriter(partial)
+        writer = _ParquetWriter(partial, columns)
     else:
         if layout is None:
             raise RecordingError(f"{out}: a candump log is encoded with a DBC layout")
+        one_bogie(source, getattr(source, "path", out), "a candump log")  # closed if refused
         writer = _CandumpWriter(partial, layout, channel)
     samples = segments = 0
     fs_hz = 0.0
@@ -82,7 +88,7 @@ def convert(source: Source, out: str | Path, layout: CanLayout | None = None, pr
                 segments += block.gap_before or samples == 0
                 samples += block.n_samples
                 fs_hz = block.fs_hz
-                writer.write(block)
+                writer.write(block, _stretch(source, block))
                 if progress is not None:
                     progress(getattr(source, "fraction_read", 0.0))
         except EndOfStream:
@@ -102,14 +108,28 @@ def _times(block: Block) -> NDArray[np.float64]:
     return block.start_s + np.arange(block.n_samples) / block.fs_hz
 
 
+def _stretch(source: Source, block: Block) -> NDArray[np.float64]:
+    """The samples of block's stretch: its own (n, 3), or a wagon's (n, 6), bogie 2's block read
+    next (a replay gives it at once, of the same times)."""
+    if source.bogies == 1:
+        return block.accel_mps2
+    parts = [block.accel_mps2]
+    for bogie in range(1, source.bogies):
+        other = source.read(0.0)
+        if other is None or other.bogie != bogie or other.start_s != block.start_s or other.n_samples != block.n_samples:
+            raise AssertionError(f"a wagon's source gave {other} after bogie {bogie - 1}'s block at {block.start_s}, not bogie {bogie}'s")
+        parts.append(other.accel_mps2)
+    return np.column_stack(parts)
+
+
 class _CsvWriter:
-    def __init__(self, path: Path, compressed: bool) -> None:
+    def __init__(self, path: Path, compressed: bool, columns: tuple[str, ...]) -> None:
         self._raw = path.open("wb")
         self._f: BinaryIO | gzip.GzipFile = gzip.GzipFile(filename="", mode="wb", fileobj=self._raw, compresslevel=GZIP_LEVEL, mtime=0) if compressed else self._raw
-        self._f.write((HEADER + "\n").encode("ascii"))
+        self._f.write((",".join(columns) + "\n").encode("ascii"))
 
-    def write(self, block: Block) -> None:
-        self._f.write(format_rows(np.column_stack([_times(block), block.accel_mps2])))
+    def write(self, block: Block, accel_mps2: NDArray[np.float64]) -> None:
+        self._f.write(format_rows(np.column_stack([_times(block), accel_mps2])))
 
     def close(self) -> None:
         if self._f is not self._raw:
@@ -118,19 +138,19 @@ class _CsvWriter:
 
 
 class _ParquetWriter:
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, columns: tuple[str, ...]) -> None:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
         from bogiemon.drivers.recording_parquet import parquet_options
 
-        self._schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in COLUMNS])
-        self._writer = pq.ParquetWriter(str(path), self._schema, **parquet_options())
+        self._schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in columns])
+        self._writer = pq.ParquetWriter(str(path), self._schema, **parquet_options(columns))
 
-    def write(self, block: Block) -> None:
+    def write(self, block: Block, accel_mps2: NDArray[np.float64]) -> None:
         import pyarrow as pa
 
-        columns = [pa.array(_times(block)), *(pa.array(np.ascontiguousarray(block.accel_mps2[:, i])) for i in range(3))]
+        columns = [pa.array(_times(block)), *(pa.array(np.ascontiguousarray(accel_mps2[:, i])) for i in range(accel_mps2.shape[1]))]
         self._writer.write_table(pa.Table.from_arrays(columns, schema=self._schema))
 
     def close(self) -> None:
@@ -147,13 +167,13 @@ class _CandumpWriter:
         self._channel = channel
         self._first_s: float | None = None
 
-    def write(self, block: Block) -> None:
+    def write(self, block: Block, accel_mps2: NDArray[np.float64]) -> None:
         from bogiemon.drivers.player import encode_instants
 
         if self._first_s is None:
             self._first_s = block.start_s
         first_counter = round((block.start_s - self._first_s) * block.fs_hz)
-        instants = encode_instants(self._layout, block.accel_mps2, first_counter=first_counter)
+        instants = encode_instants(self._layout, accel_mps2, first_counter=first_counter)
         lines = []
         for time_s, frames in zip(_times(block).tolist(), instants, strict=True):
             for frame_id, extended, payload in frames:

@@ -23,24 +23,24 @@ from numpy.typing import NDArray
 
 # A number as pyarrow's CSV reader takes it (spaces and tabs around it allowed).
 NUMBER = re.compile(rb"[ \t]*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan(?:\([0-9A-Za-z_]*\))?|inf(?:inity)?)[ \t]*", re.I)
-N_COLUMNS = 4
+N_COLUMNS = 4  # time_s,a1,a2,a3; a wagon's recording has 7 (time_s,a1,a2,a3,b1,b2,b3)
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 # The bytes of the text numpy parses here: on them loadtxt and pyarrow agree on what a number is.
 _PLAIN = bytes(range(256)).translate(None, b"0123456789+-.eE, \t\n")
 
 
 class RowsError(ValueError):
-    """A line of the block is no row of four numbers (the caller finds and names it)."""
+    """A line of the block is no row of the columns' numbers (the caller finds and names it)."""
 
 
-def parse_rows(block: bytes) -> NDArray[np.float64]:
-    """The rows of a block of whole lines as an (m, 4) float64 array; empty lines hold no row.
+def parse_rows(block: bytes, n_columns: int = N_COLUMNS) -> NDArray[np.float64]:
+    """The rows of a block of whole lines as an (m, n_columns) float64 array; empty lines hold no row.
 
-    RowsError if a line is not four numbers as pyarrow reads them; the caller then finds the
-    line (recording.py's _first_bad_line) and parses the lines before it again.
+    RowsError if a line is not n_columns numbers as pyarrow reads them; the caller then finds
+    the line (recording.py's _first_bad_line) and parses the lines before it again.
     """
     if not block.strip(b"\r\n"):
-        return np.zeros((0, N_COLUMNS))
+        return np.zeros((0, n_columns))
     if not block.translate(None, _PLAIN):  # only the recorder's bytes: numpy's parser in C
         try:
             with warnings.catch_warnings():
@@ -49,21 +49,21 @@ def parse_rows(block: bytes) -> NDArray[np.float64]:
         except (ValueError, UserWarning):
             pass  # the line-by-line parse below names nothing: it only refuses
         else:
-            if rows.shape[1] == N_COLUMNS:
+            if rows.shape[1] == n_columns:
                 return rows
-    return _parse_lines(block)
+    return _parse_lines(block, n_columns)
 
 
-def _parse_lines(block: bytes) -> NDArray[np.float64]:
+def _parse_lines(block: bytes, n_columns: int) -> NDArray[np.float64]:
     rows: list[list[float]] = []
     for line in _LINE_BREAK.split(block):
         if not line:
             continue
         cells = line.split(b",")
-        if len(cells) != N_COLUMNS or not all(NUMBER.fullmatch(cell) for cell in cells):
-            raise RowsError("a line is not four numbers")
+        if len(cells) != n_columns or not all(NUMBER.fullmatch(cell) for cell in cells):
+            raise RowsError(f"a line is not {n_columns} numbers")
         rows.append([_number(cell) for cell in cells])
-    return np.array(rows, dtype=np.float64).reshape(-1, N_COLUMNS)
+    return np.array(rows, dtype=np.float64).reshape(-1, n_columns)
 
 
 def _number(cell: bytes) -> float:

@@ -196,9 +196,11 @@ class PlayedSamples:
 def read_samples(path: str | Path, layout: CanLayout, fs_hz: float) -> PlayedSamples:
     """Every sample of a recording or a CAN log (decoded with layout at fs_hz), in memory."""
     from bogiemon.drivers.base import EndOfStream
+    from bogiemon.drivers.recording import one_bogie
     from bogiemon.drivers.replay import open_replay
 
-    source = open_replay(path, rate=0, layout=layout, fs_hz=fs_hz, max_block_s=10.0)
+    # The DBC holds one bogie's frames today: a wagon's recording is refused, never played as one bogie.
+    source = one_bogie(open_replay(path, rate=0, layout=layout, fs_hz=fs_hz, max_block_s=10.0), path, "play")
     blocks = []
     try:
         while True:

@@ -12,6 +12,12 @@ and the three vertical accelerations in m/s^2 (with or without gravity).
   accelerations dictionary-encoded: a 16-bit converter's samples take a fraction of their text).
   Any writer's file with these columns is read (pyarrow, pandas, DuckDB, polars).
 
+A wagon's recording holds both bogies on one time axis, in either format: the columns (or the
+header) `time_s,a1,a2,a3,b1,b2,b3`, a: bogie 1, b: bogie 2, each at the corners its own [[bogie]]
+table names, seen in the direction of travel. Its accel_mps2 is (n, 6); a replay of it gives each
+bogie's blocks as a stream of its own (Block.bogie). A command that reads one bogie refuses it
+(refuse_wagon) rather than misread it.
+
 Other writers' files are read through a column mapping (drivers/columns.py: which column is the
 time and in what unit, which are a1, a2, a3, a gain and offset each, the unit of the accelerations;
 a CSV's delimiter by the sniffer; Parquet's float, integer and timestamp columns). A file whose
@@ -63,6 +69,7 @@ from bogiemon.drivers.recording_check import REFERENCE_STEPS, TIME_STEP_TOLERANC
 from bogiemon.drivers.recording_csv import GZIP_LEVEL, CsvRecordingReader, write_csv_recording
 from bogiemon.drivers.recording_format import (
     ACCEL_LSB_MPS2,
+    COLUMN_SETS,
     COLUMNS,
     HEADER,
     MAX_ACCEL_MPS2,
@@ -78,18 +85,23 @@ from bogiemon.drivers.recording_format import (
     Recording,
     RecordingError,
     RecordingFormat,
+    WAGON_COLUMNS,
+    WAGON_HEADER,
     follows_gap,
     parquet_available,
     is_sample_recording_name,
+    one_bogie,
+    refuse_wagon,
 )
 from bogiemon.drivers.recording_parquet import MAX_PARQUET_GROUP_ROWS, PARQUET_GROUP_ROWS, ParquetRecordingReader, write_parquet_recording
 
 __all__ = [
-    "ACCEL_LSB_MPS2", "COLUMNS", "GZIP_LEVEL", "HEADER", "MAX_ACCEL_MPS2", "MAX_INFLATE_RATIO", "MAX_LINE_BYTES",
-    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "NEEDS_PYARROW", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC", "PARQUET_SUFFIX",
-    "RECORDING_FILE", "REFERENCE_STEPS", "TIME_STEP_TOLERANCE", "Recording", "RecordingError", "RecordingFormat",
-    "RecordingReader", "follows_gap", "is_sample_recording_name", "open_recording_reader", "parquet_available", "read_csv_recording", "read_recording",
-    "write_csv_recording", "write_parquet_recording", "write_recording",
+    "ACCEL_LSB_MPS2", "COLUMNS", "COLUMN_SETS", "GZIP_LEVEL", "HEADER", "MAX_ACCEL_MPS2", "MAX_INFLATE_RATIO", "MAX_LINE_BYTES",
+    "MAX_PARQUET_GROUP_ROWS", "MAX_RECORDING_BYTES", "MIN_ACCEL_MPS2", "NEEDS_PYARROW", "PARQUET_GROUP_ROWS", "PARQUET_MAGIC",
+    "PARQUET_SUFFIX", "RECORDING_FILE", "REFERENCE_STEPS", "TIME_STEP_TOLERANCE", "WAGON_COLUMNS", "WAGON_HEADER", "Recording",
+    "RecordingError", "RecordingFormat", "RecordingReader", "follows_gap", "is_sample_recording_name", "one_bogie",
+    "open_recording_reader", "parquet_available", "read_csv_recording", "read_recording", "refuse_wagon", "write_csv_recording",
+    "write_parquet_recording", "write_recording",
 ]  # fmt: skip
 
 

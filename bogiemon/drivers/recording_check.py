@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from bogiemon.drivers.base import MAX_TIME_S
 from bogiemon.drivers.columns import ColumnMap, nominal_rate_hz, unit_problem
 from bogiemon.drivers.files import UntrustedFile
-from bogiemon.drivers.recording_format import JITTER_TOLERANCE, MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
+from bogiemon.drivers.recording_format import COLUMNS, JITTER_TOLERANCE, MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
 
 # A time step may deviate this much (relative) from the file's step and be taken as it is: enough
 # for times printed with 6 decimals at 1 kHz.
@@ -48,6 +48,7 @@ class RecordingReader(ABC):
     path: Path
     file: UntrustedFile  # the checked descriptor: every pass reads through it, never the name
     format: str  # "csv" or "parquet"
+    column_set: tuple[str, ...] = COLUMNS  # bogiemon's names of what it reads, found at the open: COLUMNS or a wagon's WAGON_COLUMNS
     n_samples: int
     start_s: float  # the time of the first sample
     last_s: float  # the time of the last sample
@@ -71,6 +72,11 @@ class RecordingReader(ABC):
     @property
     def duration_s(self) -> float:
         return self.n_samples / self.fs_hz
+
+    @property
+    def bogies(self) -> int:
+        """The bogies it holds: 1, or 2 for a wagon's recording (time_s,a1,a2,a3,b1,b2,b3)."""
+        return (len(self.column_set) - 1) // 3
 
     @abstractmethod
     def open(self, min_samples: int) -> None:

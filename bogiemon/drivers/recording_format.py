@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.base import Block
+from bogiemon.drivers.base import Block, Source
 from bogiemon.drivers.files import FileKind
 from bogiemon.drivers.quoting import quoted
 
@@ -24,6 +24,12 @@ if TYPE_CHECKING:
 
 HEADER = "time_s,a1,a2,a3"
 COLUMNS = ("time_s", "a1", "a2", "a3")
+# A recording of a wagon's two bogies: a1..a3 on bogie 1, b1..b3 at the corners bogie 2's own
+# [[bogie]] table names (both seen in the direction of travel), on one time axis.
+WAGON_HEADER = "time_s,a1,a2,a3,b1,b2,b3"
+WAGON_COLUMNS = ("time_s", "a1", "a2", "a3", "b1", "b2", "b3")
+# The column sets a recording may have, by its channels (3 per bogie).
+COLUMN_SETS = {3: COLUMNS, 6: WAGON_COLUMNS}
 
 # The converter's range (config/bogiemon.dbc: int16 samples, 1 LSB = 16 g / 32768, g = 9.80665
 # m/s^2): -16 g .. +16 g - 1 LSB. A sample beyond it is clipped to it at the source boundary.
@@ -46,7 +52,7 @@ MAX_INFLATE_RATIO = 100.0
 MAX_LINE_BYTES = 1 << 20
 RECORDING_FILE = FileKind(
     name="recording",
-    description=f"a recording is a CSV file ({HEADER}), plain or .csv.gz, or a .parquet file",
+    description=f"a recording is a CSV file ({HEADER}, or {WAGON_HEADER} for both bogies), plain or .csv.gz, or a .parquet file",
     max_bytes=MAX_RECORDING_BYTES,
     too_large="split the recording into files of a few hours",
     gzip=True,
@@ -84,16 +90,45 @@ def parquet_available() -> bool:
     return importlib.util.find_spec("pyarrow") is not None
 
 
+def refuse_wagon(path: str | Path, bogies: int, command: str) -> None:
+    """RecordingError for a wagon's recording (both bogies) given to a command that reads one
+    bogie: its columns would be misread (b1..b3 taken for nothing, or for a1..a3), never judged."""
+    if bogies > 1:
+        raise RecordingError(
+            f"{path}: a wagon's recording (both bogies): {command} reads one bogie today; "
+            f"give it one bogie's recording ({HEADER})"
+        )
+
+
+def one_bogie(source: Source, path: str | Path, command: str) -> Source:
+    """source, if it gives one bogie's blocks. The daemon's pipeline, its monitor and its recorder
+    read one bogie today: a wagon's recording through them would interleave the two bogies' blocks
+    into one stream. Such a source is closed and refused (refuse_wagon), never misread."""
+    if source.bogies > 1:
+        source.close()
+        refuse_wagon(path, source.bogies, command)
+    return source
+
+
 @dataclass(frozen=True)
 class Recording:
     """A whole recording in memory (read_recording); for recordings of minutes, not days."""
 
     path: Path
     time_s: NDArray[np.float64]  # (n,)
-    accel_mps2: NDArray[np.float64]  # (n, 3)
+    accel_mps2: NDArray[np.float64]  # (n, 3): a1..a3; a wagon's (n, 6): a1..a3, b1..b3
     fs_hz: float
     clipped_samples: int = 0  # samples beyond the converter's range, clipped to it
     resampled_samples: int = 0  # samples of jittered stretches, interpolated onto the nominal grid
+
+    @property
+    def bogies(self) -> int:
+        """The bogies it holds: 1, or 2 for a wagon's recording."""
+        return int(self.accel_mps2.shape[1]) // 3
+
+    def bogie_accel(self, bogie: int) -> NDArray[np.float64]:
+        """(n, 3) one bogie's samples (0: a1..a3, 1: b1..b3)."""
+        return self.accel_mps2[:, 3 * bogie : 3 * bogie + 3]
 
     @property
     def n_samples(self) -> int:
@@ -114,11 +149,16 @@ class Recording:
 
     def blocks(self, block_n: int) -> list[Block]:
         """The recording cut into consecutive Blocks of at most block_n samples; a block never
-        spans a gap, and the first after one says so (gap_before)."""
+        spans a gap, and the first after one says so (gap_before). A wagon's: each stretch as one
+        block per bogie, bogie 1's first."""
         return [
-            Block(start_s=float(self.time_s[i]), fs_hz=self.fs_hz, accel_mps2=self.accel_mps2[i : min(i + block_n, hi)], gap_before=i == lo and lo > 0)
+            Block(
+                start_s=float(self.time_s[i]), fs_hz=self.fs_hz, accel_mps2=self.bogie_accel(k)[i : min(i + block_n, hi)],
+                gap_before=i == lo and lo > 0, bogie=k,
+            )
             for lo, hi in self.segments()
             for i in range(lo, hi, block_n)
+            for k in range(self.bogies)
         ]  # fmt: skip
 
     def chunks(self, chunk_n: int = 65536) -> Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None]:
@@ -147,9 +187,9 @@ def is_sample_recording_name(path: str | Path) -> bool:
 
 
 def arrow_columns(batch: pa.RecordBatch) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(time_s (m,), accel_mps2 (m, 3)) of a record batch of the four columns, as numpy views."""
+    """(time_s (m,), accel_mps2 (m, 3 or 6)) of a record batch of a column set, as numpy views."""
     time_s = _numpy(batch.column(0))
-    accel = np.column_stack([_numpy(batch.column(i)) for i in (1, 2, 3)])
+    accel = np.column_stack([_numpy(batch.column(i)) for i in range(1, batch.num_columns)])
     return time_s, accel
 
 
@@ -171,9 +211,9 @@ def short_error(exc: BaseException, limit: int = 200) -> str:
 
 
 def recording_rows(time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(time_s (n,), accel_mps2 (n, 3)) as float64, or ValueError if they do not form a recording."""
+    """(time_s (n,), accel_mps2 (n, 3 or 6)) as float64, or ValueError if they do not form a recording."""
     time_s = np.asarray(time_s, dtype=np.float64)
     accel = np.asarray(accel_mps2, dtype=np.float64)
-    if accel.shape != (time_s.shape[0], 3):
+    if accel.ndim != 2 or accel.shape[0] != time_s.shape[0] or accel.shape[1] not in COLUMN_SETS:
         raise ValueError(f"time_s {time_s.shape} and accel_mps2 {accel.shape} do not form a recording")
     return time_s, accel

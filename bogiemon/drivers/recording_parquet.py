@@ -16,7 +16,7 @@ from bogiemon.drivers.files import UntrustedFile
 from bogiemon.drivers.parquet_pages import ParquetBoundsError, check_pages, read_footer
 from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, NEEDS_PYARROW, RECORDING_FILE, RecordingError, arrow_columns, parquet_available, recording_rows, short_error
+from bogiemon.drivers.recording_format import COLUMN_SETS, COLUMNS, NEEDS_PYARROW, WAGON_COLUMNS, RECORDING_FILE, RecordingError, arrow_columns, parquet_available, recording_rows, short_error
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -96,7 +96,7 @@ class ParquetRecordingReader(RecordingReader):
             # (a C++ exception let out of RowGroupMetaData.column()) on a column chunk whose
             # statistics carry a definition-level histogram of the wrong size (found by make fuzz).
             declared = group.total_byte_size
-            if declared > len(COLUMNS) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
+            if declared > len(self._names) * (group.num_rows * _PARQUET_BYTES_PER_VALUE + (1 << 16)):
                 self.error(f"row group {i} declares {declared} bytes for {group.num_rows} rows: damaged, or no recording")
         self.n_samples = meta.num_rows
         first_s = last_s = None
@@ -119,11 +119,23 @@ class ParquetRecordingReader(RecordingReader):
         self._check_whole(min_samples, None if first_s is None else first_s * scale, None if last_s is None else last_s * scale)
 
     def _selected(self, names: list[str]) -> list[str]:
-        """The columns a mapping reads among a file's: the time's, then each channel's."""
+        """The columns a mapping reads among a file's: the time's, then each channel's; without a
+        mapping, a wagon's seven (both bogies) where the file holds them all."""
+        if self.columns.is_default and set(WAGON_COLUMNS) <= set(names):
+            self.column_set = WAGON_COLUMNS
+            return list(WAGON_COLUMNS)
+        self.column_set = COLUMNS
+        expected = (
+            f"expected the columns {', '.join(COLUMNS)} (or {', '.join(WAGON_COLUMNS)}: both bogies) or those of a mapping, "
+            f"found {', '.join(quoted(n, 40) for n in names[:8]) or 'none'}"
+        )
+        second = [name for name in WAGON_COLUMNS[4:] if name in names]
+        if self.columns.is_default and second:  # never one bogie read and the other's columns dropped unsaid
+            self.error(f"{expected}: bogie 2's {', '.join(second)} without the rest of {', '.join(WAGON_COLUMNS[4:])}")
         try:
             return self.columns.select(names)
         except ValueError as exc:
-            self.error(f"expected the columns time_s, a1, a2, a3 or those of a mapping, found {', '.join(quoted(n, 40) for n in names[:8]) or 'none'}: {exc}")
+            self.error(f"{expected}: {exc}")
 
     def _seconds(self, column: pa.ChunkedArray) -> pa.ChunkedArray:
         """A time column as float64 in its own unit (a timestamp: seconds from the Unix epoch)."""
@@ -157,9 +169,9 @@ class ParquetRecordingReader(RecordingReader):
             row += table.num_rows
 
 
-def parquet_options() -> dict[str, object]:
+def parquet_options(columns: tuple[str, ...] = COLUMNS) -> dict[str, object]:
     """How a recording's columns are written (the writer's and a streaming ParquetWriter's)."""
-    return {"compression": "zstd", "use_dictionary": list(COLUMNS[1:]), "use_byte_stream_split": [COLUMNS[0]]}
+    return {"compression": "zstd", "use_dictionary": list(columns[1:]), "use_byte_stream_split": [columns[0]]}
 
 
 def write_parquet_recording(
@@ -178,10 +190,11 @@ def write_parquet_recording(
     import pyarrow.parquet as pq
 
     time_s, accel = recording_rows(time_s, accel_mps2)
-    schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in COLUMNS])
-    table = pa.Table.from_arrays([pa.array(time_s), *(pa.array(np.ascontiguousarray(accel[:, i])) for i in range(3))], schema=schema)
+    columns = COLUMN_SETS[accel.shape[1]]  # a wagon's recording: time_s,a1,a2,a3,b1,b2,b3
+    schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in columns])
+    table = pa.Table.from_arrays([pa.array(time_s), *(pa.array(np.ascontiguousarray(accel[:, i])) for i in range(accel.shape[1]))], schema=schema)
     with Path(path).open("wb") as raw:
-        pq.write_table(table, raw, row_group_size=PARQUET_GROUP_ROWS, **parquet_options())
+        pq.write_table(table, raw, row_group_size=PARQUET_GROUP_ROWS, **parquet_options(columns))
         if fsync:
             raw.flush()
             os.fsync(raw.fileno())

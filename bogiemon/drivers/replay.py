@@ -52,7 +52,8 @@ class RecordingReplaySource(Source):
     raises RecordingError naming the line. Samples beyond the converter's range arrive clipped, and
     are counted (counters.extra["clipped_samples"]); so are the samples of jittered stretches
     resampled onto the nominal grid and the gaps, after each of which a block starts a segment
-    (gap_before).
+    (gap_before). A wagon's recording (both bogies)
+    gives each stretch as one block per bogie (Block.bogie), bogie 1's first, read after read.
     """
 
     finite = True
@@ -67,7 +68,9 @@ class RecordingReplaySource(Source):
         columns: ColumnMap | None = None,
     ) -> None:
         self.reader = open_recording_reader(path, columns=columns)
+        self.path = self.reader.path
         self.fs_hz = self.reader.fs_hz
+        self.bogies = self.reader.bogies
         self.counters = HealthCounters()
         for name in RECORDING_COUNTERS:
             self.counters.extra[name] = 0
@@ -80,7 +83,7 @@ class RecordingReplaySource(Source):
         self._error: RecordingError | None = None  # found while reading on: raised once what was before it is delivered
         # The samples read and not yet delivered.
         self._time_s: NDArray[np.float64] = np.empty(0)
-        self._accel_mps2: NDArray[np.float64] = np.empty((0, 3))
+        self._accel_mps2: NDArray[np.float64] = np.empty((0, 3 * self.reader.bogies))
         self._delivered = 0
         self._start_wall_s: float | None = None
         # A chunk after a gap waits here until the samples before it are delivered: a block never
@@ -88,6 +91,7 @@ class RecordingReplaySource(Source):
         self._after_gap: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._gap_before = True  # the pending samples start a segment
         self._last_read_s: float | None = None
+        self._other_bogies: list[Block] = []  # a wagon's stretch: the blocks of its other bogies, next
 
     @property
     def fraction_read(self) -> float:
@@ -144,6 +148,8 @@ class RecordingReplaySource(Source):
         return int(np.searchsorted(self._time_s, data_s, side="right"))
 
     def read(self, timeout_s: float) -> Block | None:
+        if self._other_bogies:
+            return self._other_bogies.pop(0)
         self._fill()
         pending = self._time_s.shape[0]
         if pending == 0:
@@ -165,11 +171,15 @@ class RecordingReplaySource(Source):
         if ready == 0:
             self.counters.timeouts += 1
             return None
-        block = Block(
-            start_s=float(self._time_s[0]),
-            fs_hz=self.fs_hz,
-            accel_mps2=self._accel_mps2[:ready],
-            gap_before=self._gap_before,
+        block, *self._other_bogies = (
+            Block(
+                start_s=float(self._time_s[0]),
+                fs_hz=self.fs_hz,
+                accel_mps2=self._accel_mps2[:ready, 3 * k : 3 * k + 3],
+                gap_before=self._gap_before,
+                bogie=k,
+            )
+            for k in range(self.reader.bogies)
         )
         self._gap_before = False
         self._time_s, self._accel_mps2 = self._time_s[ready:], self._accel_mps2[ready:]

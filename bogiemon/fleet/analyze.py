@@ -37,6 +37,7 @@ from bogiemon.judgement.windowing import BlockWindows, Status
 from bogiemon.detection import WindowIndicators
 from bogiemon.drivers.atomic import final_name_of, write_atomically, write_text_atomically
 from bogiemon.drivers.base import Block, EndOfStream, Source
+from bogiemon.drivers.recording import one_bogie
 from bogiemon.fleet import rows
 from bogiemon.fleet.cluster import DaskRunner, Runner, check_options, dask_runner, local_client
 from bogiemon.fleet.layout import Fleet, FleetError, InputFile, Issue, scan_fleet
@@ -171,6 +172,7 @@ def _read(file: InputFile, task: DayTask) -> list[Block]:
     # Opened as `replay` and `run` open a recording (the config's [source] layout and DBC for a
     # CAN log), in larger blocks for a CSV (fewer calls; the windows do not depend on them).
     source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_samples else None)
+    one_bogie(source, file.path, "fleet analyze")  # its windows are one bogie's today
     try:
         blocks = _blocks(source)
     finally:

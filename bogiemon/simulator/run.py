@@ -257,9 +257,8 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
 
 
 def write_recording(result: SimulationResult, csv_path: str | Path) -> Path:
-    """Write FILE.csv (the recording) and FILE.json (its scenario); returns the sidecar's path."""
-    if result.accel_mps2.shape[1] != 3:
-        raise SimulationError("a recording holds one bogie's a1..a3 for now: simulate one bogie to write it, or use the result's arrays")
+    """Write FILE.csv (the recording: time_s,a1,a2,a3, or a wagon's time_s,a1,a2,a3,b1,b2,b3 for a run
+    of two bogies) and FILE.json (its scenario); returns the sidecar's path."""
     write_csv_recording(csv_path, result.time_s, result.accel_mps2)
     json_path = sidecar_path(csv_path)
     write_sidecar(json_path, result.scenario, {**result.derived, "recording": Path(csv_path).name})

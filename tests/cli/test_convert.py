@@ -51,3 +51,26 @@ def test_an_output_of_no_known_kind_is_one_line_before_anything_is_read(tmp_path
         f"bogiemon: error: {tmp_path / 'out.mp3'}: convert writes a recording (.csv, .csv.gz, .parquet) or a candump -L log (.log): name the output so\n"
     )
     assert not list(tmp_path.glob("*out*"))
+
+
+def wagon_csv(path: Path, n: int = 3000) -> None:
+    rng = np.random.default_rng(8)
+    accel = np.array([[float(f"{x:.6f}") for x in row] for row in rng.normal(9.81, 2.0, size=(n, 6))])
+    write_csv_recording(path, START_S + np.arange(n) / 500.0, accel)
+
+
+def test_a_wagons_recording_converts_through_parquet_and_csv_gz_bit_for_bit(tmp_path: Path) -> None:
+    wagon_csv(tmp_path / "wagon.csv")
+    assert main(["convert", str(tmp_path / "wagon.csv"), "-o", str(tmp_path / "wagon.parquet")]) == 0
+    assert main(["convert", str(tmp_path / "wagon.parquet"), "-o", str(tmp_path / "back.csv.gz")]) == 0
+    assert gzip.decompress((tmp_path / "back.csv.gz").read_bytes()) == (tmp_path / "wagon.csv").read_bytes()
+
+
+def test_a_wagons_recording_to_a_candump_log_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    wagon_csv(tmp_path / "wagon.csv", 100)
+    assert main(["convert", str(tmp_path / "wagon.csv"), "-o", str(tmp_path / "run.log")]) == 2
+    assert capsys.readouterr().err == (
+        f"bogiemon: error: {tmp_path / 'wagon.csv'}: a wagon's recording (both bogies): a candump log reads one bogie today; "
+        "give it one bogie's recording (time_s,a1,a2,a3)\n"
+    )
+    assert not list(tmp_path.glob("*.log*")) and not list(tmp_path.glob(".*"))

@@ -15,7 +15,9 @@ from hypothesis import strategies as st
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.drivers import recording_csv
 from bogiemon.drivers.csv_rows import RowsError, parse_rows
-from bogiemon.drivers.recording import HEADER, RecordingError, open_recording_reader, write_csv_recording, write_parquet_recording
+from bogiemon.drivers.recording import (
+    HEADER, WAGON_HEADER, RecordingError, open_recording_reader, write_csv_recording, write_parquet_recording,
+)  # fmt: skip
 
 
 @pytest.fixture
@@ -126,3 +128,79 @@ def test_a_recorder_writing_parquet_is_refused_by_the_config_where_pyarrow_is_mi
         BogiemonConfig.model_validate({"recorder": {"enabled": True, "format": "parquet"}})
     assert "pip install 'bogiemon[recordings]'" in str(refused.value)
     assert BogiemonConfig.model_validate({"recorder": {"enabled": True, "format": "csv.gz"}}).recorder.enabled
+
+
+# --- A wagon's recording (time_s,a1,a2,a3,b1,b2,b3) through numpy's parser -------------------------
+
+WAGON_ROW = st.lists(NUMBERS, min_size=6, max_size=8).map(",".join)
+WAGON_TIME_ROWS = st.integers(0, 50).map(lambda i: f"{i * 0.002:.6f},0.1,0.2,9.81,-0.1,0.3,9.79")
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    lines=st.lists(st.one_of(WAGON_ROW, st.just(""), WAGON_TIME_ROWS), min_size=1, max_size=12),
+    end=st.sampled_from(["\n", "\r\n", "\r"]),
+)
+def test_a_wagons_block_parses_to_pyarrows_seven_columns_or_is_refused_as_pyarrow_refuses_it(lines: list[str], end: str) -> None:
+    block = "".join(line + end for line in lines).encode()
+    parse_arrow, arrow_refuses = recording_csv._csv_parser(recording_csv._WAGON_LAYOUT)
+    try:
+        expected = np.concatenate([np.column_stack([t, a]) for t, a in parse_arrow(block)] or [np.zeros((0, 7))])
+    except arrow_refuses:
+        with pytest.raises(RowsError):
+            parse_rows(block, 7)
+        return
+    got = parse_rows(block, 7)
+    assert got.shape == expected.shape
+    assert got[~np.isnan(got)].view(np.uint64).tolist() == expected[~np.isnan(expected)].view(np.uint64).tolist()
+    assert np.array_equal(np.isnan(got), np.isnan(expected))
+
+
+@pytest.mark.parametrize("name", ["wagon.csv", "wagon.csv.gz"])
+def test_a_wagons_recording_reads_to_the_same_bits_without_pyarrow(tmp_path: Path, name: str) -> None:
+    rng = np.random.default_rng(36)
+    time_s = 1.7e9 + np.arange(20_000) / 500.0
+    accel = rng.normal(0.0, 3.0, (20_000, 6)) + [0.0, 0.0, 9.81, 0.0, 0.0, 9.81]
+    write_csv_recording(tmp_path / name, time_s, accel)
+    with_arrow = open_recording_reader(tmp_path / name).read_all()
+    rows, error = outcome_without_pyarrow(tmp_path / name)
+    assert error is None and with_arrow.bogies == 2
+    assert np.array_equal(np.array(rows), np.column_stack([with_arrow.time_s, with_arrow.accel_mps2]))
+
+
+WAGON_BAD_FILES = {
+    "four values": "0.000,1,2,3,4,5,6\n0.002,1,2,3\n0.004,1,2,3,4,5,6\n",
+    "a word in b2": "0.000,1,2,3,4,5,6\n0.002,1,2,3,4,x,6\n0.004,1,2,3,4,5,6\n",
+    "a NaN in b3": "0.000,1,2,3,4,5,6\n0.002,1,2,3,4,5,nan\n0.004,1,2,3,4,5,6\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(WAGON_BAD_FILES))
+def test_a_bad_wagons_file_reads_alike_with_and_without_pyarrow(tmp_path: Path, name: str) -> None:
+    path = tmp_path / "wagon.csv"
+    path.write_text(WAGON_HEADER + "\n" + WAGON_BAD_FILES[name])
+    with_arrow = outcome(path)
+    assert with_arrow[1] is not None and outcome_without_pyarrow(path) == with_arrow
+
+
+def test_the_replay_of_a_wagons_recording_without_pyarrow_gives_each_bogies_columns(tmp_path: Path) -> None:
+    from bogiemon.drivers.base import EndOfStream
+    from bogiemon.drivers.replay import RecordingReplaySource
+
+    rng = np.random.default_rng(37)
+    accel = np.round(rng.normal(9.81, 1.0, (1200, 6)), 6)
+    write_csv_recording(tmp_path / "wagon.csv.gz", np.arange(1200) / 500.0, accel)
+    with pytest.MonkeyPatch.context() as mp:
+        for module in [m for m in sys.modules if m == "pyarrow" or m.startswith("pyarrow.")]:
+            mp.delitem(sys.modules, module)
+        mp.setitem(sys.modules, "pyarrow", None)
+        source = RecordingReplaySource(tmp_path / "wagon.csv.gz", rate=0)
+        blocks = []
+        with pytest.raises(EndOfStream):
+            while True:
+                blocks.append(source.read(1.0))
+        source.close()
+    assert [(b.bogie, b.n_samples) for b in blocks] == [(0, 500), (1, 500), (0, 500), (1, 500), (0, 200), (1, 200)]
+    for bogie in (0, 1):
+        got = np.concatenate([b.accel_mps2 for b in blocks if b.bogie == bogie])
+        assert np.array_equal(got, accel[:, 3 * bogie : 3 * bogie + 3])

@@ -18,6 +18,7 @@ from bogiemon.drivers.recording import (
     HEADER,
     MAX_ACCEL_MPS2,
     MIN_ACCEL_MPS2,
+    WAGON_HEADER,
     RecordingError,
     open_recording_reader,
     read_csv_recording,
@@ -66,8 +67,8 @@ def test_blank_lines_and_a_byte_order_mark_are_accepted(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("", r"line 1: expected the header 'time_s,a1,a2,a3' or the columns of a mapping, found 'an empty line': no time column"),
-        ("x,y,z,w\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' or the columns of a mapping, found 'x,y,z,w': no time column, no column 'a1'.*--columns time=NAME"),
+        ("", r"line 1: expected the header 'time_s,a1,a2,a3' \(or 'time_s,a1,a2,a3,b1,b2,b3': both bogies\) or the columns of a mapping, found 'an empty line': no time column"),
+        ("x,y,z,w\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' \(or 'time_s,a1,a2,a3,b1,b2,b3': both bogies\) or the columns of a mapping, found 'x,y,z,w': no time column, no column 'a1'.*--columns time=NAME"),
         ("time_s,a1,a2,a3\n", r"holds no samples after the header"),
         ("time_s,a1,a2,a3\n0,1,2,3\n", r"holds 1 sample\(s\)"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,x,3\n", r"line 3: a2 is not a number: 'x'"),
@@ -162,8 +163,8 @@ def test_a_time_beyond_the_year_2100_is_an_error_naming_its_line(tmp_path: Path)
 def reference_rows(raw: bytes) -> tuple[np.ndarray, np.ndarray]:
     """The rows of a valid CSV recording as Python's csv module and float() read them."""
     text = raw.decode("utf-8-sig")
-    rows = [row for row in csv.reader(io.StringIO(text, newline=""))][1:]
-    values = np.array([[float(cell) for cell in row] for row in rows if row], dtype=np.float64).reshape(-1, 4)
+    header, *rows = [row for row in csv.reader(io.StringIO(text, newline=""))]
+    values = np.array([[float(cell) for cell in row] for row in rows if row], dtype=np.float64).reshape(-1, len(header))
     return values[:, 0], values[:, 1:]
 
 
@@ -183,17 +184,22 @@ def chunked(path: Path) -> tuple[np.ndarray, np.ndarray]:
     packed=st.booleans(),
     block_bytes=st.sampled_from([64, 100, 257, 1 << 20]),
     reference_steps=st.sampled_from([1, 3, 50, 4096]),
+    bogies=st.sampled_from([1, 2]),
 )
 def test_the_streaming_reader_gives_the_csv_modules_rows_across_any_block_boundary(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, n: int, line_break: str, blank_every: int, bom: bool, last_break: bool,
-    packed: bool, block_bytes: int, reference_steps: int,
+    packed: bool, block_bytes: int, reference_steps: int, bogies: int,
 ) -> None:  # fmt: skip
     # Small blocks and a short reference put the block edges, the CR of a CRLF cut between two
     # reads, blank lines and the start of the step checks everywhere in a file of a few rows.
-    monkeypatch.setattr(recording_csv, "MAX_LINE_BYTES", block_bytes)
+    monkeypatch.setattr(recording_csv, "MAX_LINE_BYTES", block_bytes * bogies)  # a wagon's lines are twice as long
     monkeypatch.setattr(recording_check, "REFERENCE_STEPS", reference_steps)
     rng = np.random.default_rng(n)
-    lines = [HEADER] + [f"{1.7e9 + i / 500.0!r},{rng.normal():.6f},{rng.normal() * 1e-3!r},{9.81 + rng.normal():.9f}" for i in range(n)]
+    bogie = "{:.6f},{!r},{:.9f}"  # three spellings of a number
+    lines = [HEADER if bogies == 1 else WAGON_HEADER] + [
+        f"{1.7e9 + i / 500.0!r}," + ",".join(bogie.format(rng.normal(), rng.normal() * 1e-3, 9.81 + rng.normal()) for _ in range(bogies))
+        for i in range(n)
+    ]
     if blank_every:
         lines = [line for i, line in enumerate(lines) for line in ((line, "") if i % blank_every == 0 else (line,))]
     raw = ("\ufeff" if bom else "").encode() + (line_break.join(lines) + (line_break if last_break else "")).encode()
@@ -267,7 +273,8 @@ def test_a_compressed_line_of_many_megabytes_is_refused_after_the_first(tmp_path
     with pytest.raises(RecordingError) as info:
         open_recording_reader(path)
     assert str(info.value) == (
-        f"{path}: line 2: longer than 1024 KiB; a recording is a CSV file (time_s,a1,a2,a3), plain or .csv.gz, "
+        f"{path}: line 2: longer than 1024 KiB; a recording is a CSV file (time_s,a1,a2,a3, or time_s,a1,a2,a3,b1,b2,b3 "
+        "for both bogies), plain or .csv.gz, "
         "or a .parquet file: is this the right file?"
     )
 

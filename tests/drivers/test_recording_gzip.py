@@ -67,7 +67,7 @@ def test_gzip_is_recognised_by_its_magic_bytes_whatever_the_name(tmp_path: Path)
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("x,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' or the columns of a mapping, found 'x,a1,a2,a3': no time column"),
+        ("x,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' \(or 'time_s,a1,a2,a3,b1,b2,b3': both bogies\) or the columns of a mapping, found 'x,a1,a2,a3': no time column"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,x,3\n", r"line 3: a2 is not a number: 'x'"),
         ("time_s,a1,a2,a3\n0,1,2,3\n\n0.002,1,2,3\n0.004,nan,2,3\n", r"line 5: a value is NaN"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.004,1,2,3\n0.0045,1,2,3\n", r"line 5: time step 0.0005 s is shorter"),

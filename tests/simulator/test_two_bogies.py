@@ -17,7 +17,7 @@ from bogiemon.simulator.model_b import bodies as model_b_bodies
 from bogiemon.simulator.model_b.parameters import default_parameter_set as model_b_parameter_set
 from bogiemon.simulator.model_b.parameters import with_ideal_sensor
 from bogiemon.simulator.params import centre_offset_m, default_parameter_set
-from bogiemon.simulator.run import simulate, simulate_batch, write_recording
+from bogiemon.simulator.run import simulate, simulate_batch
 from bogiemon.simulator.scenario import Scenario, SpeedProfile
 from bogiemon.simulator.sensors import SensorModel
 from bogiemon.simulator.suspension import parse_fault
@@ -101,10 +101,23 @@ def test_a_two_bogie_scenario_survives_its_sidecar_dict_and_a_one_bogie_dict_is_
     assert "bogies" not in Scenario().to_dict() and Scenario.from_dict(Scenario().to_dict()).bogies == 1
 
 
-def test_a_recording_of_two_bogies_is_refused_in_one_line_until_the_format_holds_them(tmp_path) -> None:
-    result = simulate(Scenario(duration_s=1.0, bogies=2))
-    with pytest.raises(SimulationError, match="a recording holds one bogie"):
-        write_recording(result, tmp_path / "run.csv")
+def test_simulate_bogies_2_writes_the_wagons_recording_whose_a_columns_are_the_one_bogie_files(tmp_path) -> None:
+    from bogiemon.cli.main import main
+    from bogiemon.drivers.recording import WAGON_HEADER, read_recording
+    from bogiemon.simulator.run import rerun_sidecar
+
+    args = ["simulate", "-q", "--duration-s", "2", "--seed", "5", "--fault", "type_a:rear_outer:0.0@2:leading-left"]
+    assert main([*args, "-o", str(tmp_path / "one.csv")]) == 0
+    assert main([*args, "--bogies", "2", "-o", str(tmp_path / "wagon.csv")]) == 0
+    one = (tmp_path / "one.csv").read_text().splitlines()
+    wagon = (tmp_path / "wagon.csv").read_text().splitlines()
+    assert wagon[0] == WAGON_HEADER and len(wagon) == len(one) == 1001
+    assert [",".join(line.split(",")[:4]) for line in wagon[1:]] == one[1:]  # bogie 1: the one-bogie run's text
+    rerun = rerun_sidecar(tmp_path / "wagon.json")  # the sidecar holds both bogies: it gives the same samples again
+    assert rerun.scenario.bogies == 2 and rerun.scenario.faults == (parse_fault("type_a:rear_outer:0.0@2:leading-left"),)
+    recording = read_recording(tmp_path / "wagon.csv")
+    as_written = np.array([[float(f"{x:.6f}") for x in row] for row in rerun.accel_mps2[:, 3:]])  # the CSV's 6 decimals
+    np.testing.assert_array_equal(recording.bogie_accel(1), as_written)
 
 
 def test_model_a_bogie_2_reads_through_its_own_sensor_errors() -> None:
