@@ -393,11 +393,15 @@ def datagram_socketcan(monkeypatch: pytest.MonkeyPatch) -> list[DatagramCanBus]:
 
 
 def send_and_read(source: CanSource, bus: DatagramCanBus, frames: list[can.Message], n: int, chunk: int = 100) -> list:
-    """Send frames in chunks the socket's default buffer holds, reading each before the next; n samples in all."""
+    """Send frames in chunks the socket's default buffer holds, each taken off the socket before the
+    next is sent (however slow the machine: a busy one must not make the kernel drop them); n samples in all."""
     blocks: list = []
     for i in range(0, len(frames), chunk):
         send_frames(bus.address, frames[i : i + chunk])
-        blocks += read_all(source, n - sum(b.n_samples for b in blocks)) if i + chunk >= len(frames) else [source.read(0.02)]
+        sent, deadline = min(i + chunk, len(frames)), time.monotonic() + 60.0
+        while source.counters.frames + source.counters.bad_frames < sent and time.monotonic() < deadline:
+            blocks.append(source.read(0.02))
+    blocks += read_all(source, n - sum(b.n_samples for b in blocks if b is not None))
     return [b for b in blocks if b is not None]
 
 

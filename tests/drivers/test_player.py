@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import can
@@ -150,9 +151,10 @@ def test_cli_play_at_real_time_pace_runs_beside_a_reader(tmp_path: Path) -> None
     with CanSource(CanBusPort("virtual", channel), HUB, FS_HZ) as source:
         player = threading.Thread(target=main, args=(["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel],))
         player.start()
-        got = 0
-        while got < 100 and (block := source.read(0.3)) is not None:
-            got += block.n_samples
+        got, deadline = 0, time.monotonic() + 60.0  # the player reads its file first: on a busy machine, a while
+        while got < 100 and time.monotonic() < deadline:
+            block = source.read(0.3)
+            got += block.n_samples if block is not None else 0
         player.join()
     assert got == 100
 
@@ -165,7 +167,7 @@ def test_cli_play_writes_its_ready_file_before_the_first_frame(tmp_path: Path) -
         player = threading.Thread(target=main, args=(argv,))
         player.start()
         try:
-            block = source.read(5.0)  # returns at the first 10 samples (max_block_s), 20 ms into the run
+            block = source.read(60.0)  # returns at the first 10 samples (max_block_s), 20 ms into the run
             assert block is not None and block.n_samples == 10
             assert ready.read_text() == f"virtual {channel}\n"  # there when the first frame arrived
         finally:
