@@ -83,6 +83,11 @@ def xcorr_direct(x: NDArray[np.float64], y: NDArray[np.float64], max_lag_n: int)
     return out / n
 
 
+# Hops of room after the held samples in the history buffer: the held samples are copied back
+# once every SLACK_HOPS hops.
+SLACK_HOPS = 4
+
+
 @dataclass(frozen=True)
 class WindowCorrelations:
     """The correlations of one window.
@@ -143,10 +148,11 @@ class StreamingCrossCorrelator:
         self._lag_take: slice | list[int] = slice(lag[0], lag[-1] + 1) if lag == list(range(lag[0], lag[-1] + 1)) else lag
         n_lag_ch = len(self._lag_channels)
         # The last window_n + K samples of the lagged channels, [s - K, s + N) at emission time, are
-        # rows [end - held, end) of a buffer several windows long: a hop is appended, and the held
-        # rows move to its start only when it is full (copying them every hop cost a tenth of the core).
+        # rows [end - held, end) of a buffer SLACK_HOPS hops longer: a hop is appended, and the held
+        # rows move to its start only when it is full (copying them every hop cost a tenth of the
+        # core; every fourth hop a fortieth, where a window more of room took 1.5 MiB at the defaults).
         self._held_n = window_n + max_lag_n
-        self._buffer = np.zeros((self._held_n + max(self._held_n, 8 * hop_n), n_lag_ch))
+        self._buffer = np.zeros((self._held_n + SLACK_HOPS * hop_n, n_lag_ch))
         self._end = self._held_n
         self._hops = HopAssembler(hop_n, n_channels)
         # Per hop, per pair and direction (x leads, y leads), lags 0..K: A_b; and the zero-lag sums.
