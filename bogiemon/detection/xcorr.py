@@ -150,7 +150,7 @@ class StreamingCrossCorrelator:
         # The last window_n + K samples of the lagged channels, [s - K, s + N) at emission time, are
         # rows [end - held, end) of a buffer SLACK_HOPS hops longer: a hop is appended, and the held
         # rows move to its start only when it is full (copying them every hop cost a tenth of the
-        # core; every fourth hop a fortieth, where a window more of room took 1.5 MiB at the defaults).
+        # core, every fourth hop about a fortieth; a whole window of room took 1 MiB more at the defaults).
         self._held_n = window_n + max_lag_n
         self._buffer = np.zeros((self._held_n + SLACK_HOPS * hop_n, n_lag_ch))
         self._end = self._held_n
@@ -209,16 +209,12 @@ class StreamingCrossCorrelator:
             return None
         return self._emit()
 
-    def _cross_spectra(
-        self, spec_lead: NDArray[np.complex128], spec_lag: NDArray[np.complex128], out: NDArray[np.complex128] | None = None
-    ) -> NDArray[np.complex128]:
-        """(n_pairs, 2, bins): lead(x) * conj(lag(y)), then lead(y) * conj(lag(x)), per pair (into
-        out when given)."""
+    def _cross_spectra(self, spec_lead: NDArray[np.complex128], spec_lag: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        """(n_pairs, 2, bins): lead(x) * conj(lag(y)), then lead(y) * conj(lag(x)), per pair."""
         i, j = self._pair_cols
         x_lead, y_lead = spec_lead[:, i].T, spec_lead[:, j].T  # (n_pairs, bins)
         x_lag, y_lag = spec_lag[:, i].T, spec_lag[:, j].T
-        if out is None:
-            out = np.empty((len(self._pairs), 2, spec_lead.shape[0]), dtype=np.complex128)
+        out = np.empty((len(self._pairs), 2, spec_lead.shape[0]), dtype=np.complex128)
         np.multiply(x_lead, np.conj(y_lag), out=out[:, 0])
         np.multiply(y_lead, np.conj(x_lag), out=out[:, 1])
         return out
