@@ -55,6 +55,8 @@ class DatagramBus(can.BusABC):
 
 socketcan.SocketcanBus = DatagramBus
 from bogiemon.cli.main import main
+import bogiemon
+print("bogiemon from", bogiemon.__file__, flush=True)
 sys.exit(main(["run", "--config", sys.argv[1]]))
 """
 
@@ -98,7 +100,9 @@ def run_peak_rss_mib(python: Path, frames_npy: Path, sender: str, unit: Path, se
         env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "LANG": "C.UTF-8", **unit_environment(unit)}
         log_path = Path(tmp) / "daemon.log"
         with log_path.open("w") as log:
-            daemon = subprocess.Popen([str(python), "-c", DAEMON, str(config), str(port)], stdout=log, stderr=subprocess.STDOUT, env=env)
+            # In the temporary folder: `python -c` puts its working directory first on sys.path, and
+            # from the checkout that would import the checkout's bogiemon instead of the bundle's.
+            daemon = subprocess.Popen([str(python), "-c", DAEMON, str(config), str(port)], stdout=log, stderr=subprocess.STDOUT, env=env, cwd=tmp)
             player = None
             try:
                 time.sleep(start_up_s)
@@ -116,6 +120,9 @@ def run_peak_rss_mib(python: Path, frames_npy: Path, sender: str, unit: Path, se
         lines = log_path.read_text().splitlines()
     # JSON lines behind a syslog priority, <6>{...} (daemon/logs.py)
     stopped = [json.loads(line[line.index("{"):]) for line in lines if '"event": "stopped"' in line]
+    origin = next((line.removeprefix("bogiemon from ") for line in lines if line.startswith("bogiemon from ")), "")
+    if not origin.startswith(str(python.parents[1])):
+        raise MemoryBenchError(f"bogiemon run imported bogiemon from {origin or 'nowhere said'}, not from the install at {python.parents[1]}")
     if status != 0 or not stopped:
         raise MemoryBenchError(f"bogiemon run exited {status}: {' | '.join(lines[-5:])}")
     frames = int(stopped[-1]["source"]["frames"])
