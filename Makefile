@@ -105,7 +105,8 @@ bench-import: $(STAMP)
 
 # The gateway (docs/gateway.md): the bundle's install on disk (build it first: make bundle), a
 # wagon's day of CPU with and without a duty cycle from stretches measured at real time (about 12
-# minutes), and what a duty cycle costs the detection of a broken spring (a 2 h simulated run, once).
+# minutes), what a duty cycle costs the detection of a broken spring (a 2 h simulated run, once),
+# and the peak RSS of `bogiemon run` on hub CAN as the bundle installs it (about 4 minutes).
 .PHONY: bench-gateway bench-vcan
 bench-gateway: $(STAMP)
 	$(PY) bench/bench_gateway.py $(BENCH_ARGS)

@@ -25,13 +25,18 @@ without a duty cycle ([duty], daemon/duty.py).
     the break at 8 moments spread over the cycle, and the time from the break to its CONFIRMED,
     beside the time without a duty cycle. Not timing: the same every run.
 
+(d) Memory: the peak RSS (VmHWM) of `bogiemon run` on hub CAN at 500 Hz, run by the host bundle's
+    install (the gateway's packages only) on the same datagram stand-in, fed by a sender process,
+    for window_s + 60 s at least (bench/gateway_memory.py).
+
 The figures with a target are guarded (bench/guard.py). Run with `make bench-gateway` or
-`.venv/bin/python bench/bench_gateway.py [--part install|day|detection|all] [--seconds S] [--runs R] [--record]`.
+`.venv/bin/python bench/bench_gateway.py [--part install|day|detection|memory|all] [--seconds S] [--runs R] [--record]`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import shlex
@@ -43,7 +48,7 @@ import tarfile
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +76,9 @@ COMMAND = "make bench-gateway"
 TARGET_INSTALL_MB = 150.0
 BEFORE_INSTALL_MB = 434.0  # a gateway's pip install before issue 35 (pyarrow and scipy in it)
 TARGET_DAY_CPU_S = 100.0
+TARGET_RSS_MIB = 64.0
+BEFORE_VM_RSS_MIB = 78.6  # vcan_daemon_peak_rss_mib, bench_vcan.py in the VM at b089627
+MEMORY_START_UP_S = 5.0  # for the installed daemon to start and bind its socket before the sender plays
 TARGET_STANDING_CPU_S_PER_H = 1.0
 RUNNING_H, STANDING_H = 6.0, 18.0
 # The cycle the day's figure with a duty cycle uses: 10 minutes measured in every 30.
@@ -82,8 +90,9 @@ DUTY = "[duty]\nenabled = true\nstanding_after_s = {standing_after_s}\nmeasure_m
 # -- (a) the install ---------------------------------------------------------------------------
 
 
-def install_mb(bundle: Path) -> float:
-    """MB on disk of the version's tree that the bundle's install.sh makes."""
+@contextlib.contextmanager
+def installed(bundle: Path) -> Iterator[Path]:
+    """The version's tree that the bundle's install.sh makes in a temporary prefix (removed after)."""
     with tempfile.TemporaryDirectory() as tmp:
         with tarfile.open(bundle) as tar:
             tar.extractall(tmp, filter="data")
@@ -94,17 +103,28 @@ def install_mb(bundle: Path) -> float:
         if done.returncode != 0:
             raise BenchError(f"{installer} failed: {done.stderr[-2000:]}")
         (tree,) = Path(tmp, "opt", "versions").iterdir()
+        yield tree
+
+
+def install_mb(bundle: Path) -> float:
+    """MB on disk of the version's tree that the bundle's install.sh makes."""
+    with installed(bundle) as tree:
         size = subprocess.run(["du", "-sk", str(tree)], capture_output=True, text=True, check=True)
         return int(size.stdout.split()[0]) / 1024
 
 
-def install_figures() -> list[Figure]:
+def host_bundle() -> Path:
     bundles = sorted((REPO / "build" / "bundle").glob(f"bogiemon-*-{platform.machine()}.tar.gz"))
     if not bundles:
         raise BenchError(f"no bundle for {platform.machine()} in build/bundle: run `make bundle` first")
-    mb = install_mb(bundles[-1])
+    return bundles[-1]
+
+
+def install_figures() -> list[Figure]:
+    bundle = host_bundle()
+    mb = install_mb(bundle)
     return [
-        Figure.of("gateway_install_mb", f"gateway install on disk ({bundles[-1].name}, CPython {platform.python_version()})", "MB",
+        Figure.of("gateway_install_mb", f"gateway install on disk ({bundle.name}, CPython {platform.python_version()})", "MB",
                   [mb], COMMAND, higher_is_better=False, target=TARGET_INSTALL_MB,
                   note=f"{mb / BEFORE_INSTALL_MB:.2f}x the {BEFORE_INSTALL_MB:g} MB of the pip install before issue 35"),
     ]  # fmt: skip
@@ -319,8 +339,32 @@ def detection_figures() -> list[Figure]:
     return out
 
 
+# -- (d) the daemon's peak memory --------------------------------------------------------------
+
+
+def memory_figures(seconds: float) -> list[Figure]:
+    """VmHWM of `bogiemon run` on hub CAN at 500 Hz, as the host bundle installs it (bench/gateway_memory.py)."""
+    from gateway_memory import MemoryBenchError, run_peak_rss_mib
+
+    window_s = load_config(None).processing.window_s
+    span_s = max(seconds, window_s + 60.0)  # the first window judged and several hops after it
+    with installed(host_bundle()) as tree, tempfile.TemporaryDirectory() as tmp:
+        frames = Path(tmp) / "frames.npy"
+        hub_datagrams(healthy_accel(span_s + MEMORY_START_UP_S + 30.0, seed=0), frames)
+        try:
+            mib, _ = run_peak_rss_mib(tree / "bin" / "python", frames, SENDER, REPO / "systemd" / "bogiemon.service", span_s, FS_HZ, MEMORY_START_UP_S)
+        except MemoryBenchError as exc:
+            raise BenchError(str(exc)) from None
+    return [
+        Figure.of("gateway_run_peak_rss_mib", f"peak RSS of `bogiemon run`, hub CAN at 500 Hz, the bundle's install, {span_s:g} s", "MiB",
+                  [mib], COMMAND, higher_is_better=False, target=TARGET_RSS_MIB,
+                  note=f"VmHWM on this host (recvmmsg on a datagram socket); before: {BEFORE_VM_RSS_MIB:g} MiB in the VM (bench_vcan)"),
+    ]  # fmt: skip
+
+
 PARTS: dict[str, Callable[[argparse.Namespace], list[Figure]]] = {
     "install": lambda args: install_figures(),
+    "memory": lambda args: memory_figures(args.seconds),
     "day": lambda args: day_figures(args.runs, args.seconds),
     "detection": lambda args: detection_figures(),
 }

@@ -9,7 +9,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from bogiemon.daemon.config_sections import Section
-from bogiemon.drivers.recording import NEEDS_PYARROW, RecordingFormat, parquet_available
+from bogiemon.drivers.recording_format import NEEDS_PYARROW, RecordingFormat, parquet_available
 
 MIB = 1 << 20
 

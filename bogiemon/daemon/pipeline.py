@@ -19,7 +19,7 @@ from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.ringbuffer import BlockRing, RingClosed
 from bogiemon.daemon.store import StoreError
 from bogiemon.drivers.base import EndOfStream, Source
-from bogiemon.drivers.recording import RecordingError
+from bogiemon.drivers.recording_format import RecordingError
 
 READ_TIMEOUT_S = 0.5
 # A source at rest (a duty cycle) is asked less often: its thread wakes every 2 s instead of twice

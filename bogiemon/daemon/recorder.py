@@ -37,7 +37,7 @@ from bogiemon.judgement.events import EventKind
 from bogiemon.daemon.logs import get_logger
 from bogiemon.drivers.base import Block
 from bogiemon.drivers.atomic import final_name_of, write_atomically
-from bogiemon.drivers.recording import RecordingFormat, write_recording
+from bogiemon.drivers.recording_format import RecordingFormat
 from bogiemon.daemon.recorder_space import (
     DEFAULT_RESERVE_BYTES,
     FILE_SLACK_BYTES,
@@ -185,7 +185,13 @@ class Recorder:
         self.settings = settings
         self.counters = RecorderCounters()
         # The writer takes the format from the name (the temporary ends as the final name does).
-        self._write_recording: WriteRecording = write or write_recording  # type: ignore[assignment]
+        self._write_recording: WriteRecording
+        if write is None:  # the writers of every recording format, loaded with a recorder only
+            from bogiemon.drivers.recording import write_recording
+
+            self._write_recording = write_recording  # type: ignore[assignment]
+        else:
+            self._write_recording = write
         self._log = get_logger(component="recorder")
         self._ring: SampleRing | None = None
         self._judged_starts: deque[float] = deque(maxlen=settings.confirm_n)  # of the stretch's last judged windows

@@ -12,7 +12,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.recording import RecordingFormat
+from bogiemon.drivers.recording_format import RecordingFormat
 
 MIB = 1 << 20
 # The recorder's own files, and only they, count towards the cap and are ever deleted; a name is

@@ -33,7 +33,7 @@ from bogiemon.daemon.startup import Snapshot, check_start
 from bogiemon.daemon.statedir import give_back
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
-from bogiemon.drivers.recording import RecordingError, one_bogie
+from bogiemon.drivers.recording_format import RecordingError, one_bogie
 
 SourceFactory = Callable[[BogiemonConfig], Source]
 STATUS_PERIOD_S = 10.0

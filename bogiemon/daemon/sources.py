@@ -22,9 +22,7 @@ from bogiemon.daemon.config import (
 )
 from bogiemon.detection import ProcessingSettings
 from bogiemon.drivers.base import Source
-from bogiemon.drivers.recording import RecordingError
-from bogiemon.drivers.replay import RecordingReplaySource, open_replay
-from bogiemon.drivers.serial_source import SerialSource
+from bogiemon.drivers.recording_format import RecordingError
 
 def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -> ProcessingSettings:
     """The detection core's settings at a recording's own rate.
@@ -42,6 +40,8 @@ def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -
         ) from None
 
 
+# A source's driver is imported when the config asks for it (a gateway's `run` on CAN loads no
+# recording or log reader, no serial port and no simulator: start-up and memory, docs/gateway.md).
 if TYPE_CHECKING:  # cantools and python-can load with a CAN source or log only
     from bogiemon.drivers.candb import CanLayout
 
@@ -65,6 +65,8 @@ def _open_can(src: CanSourceConfig, config: BogiemonConfig) -> Source:
 
 
 def _open_serial(src: SerialSourceConfig, config: BogiemonConfig) -> Source:
+    from bogiemon.drivers.serial_source import SerialSource  # pyserial, for a serial source only
+
     return SerialSource(
         src.port,
         src.baudrate,
@@ -82,6 +84,8 @@ def _open_simulated(src: SimulatedSourceConfig, config: BogiemonConfig) -> Sourc
 
 
 def _open_replay(src: ReplaySourceConfig, config: BogiemonConfig) -> Source:
+    from bogiemon.drivers.replay import RecordingReplaySource, open_replay  # the readers of every recording and log format
+
     def layout() -> CanLayout:  # read only for a CAN log
         from bogiemon.drivers.candb import load_layout
 

@@ -29,7 +29,7 @@ from bogiemon.daemon.config import (
     SimulatedSourceConfig,
     load_config_and_files,
 )
-from bogiemon.drivers.recording import is_sample_recording_name
+from bogiemon.drivers.recording_format import is_sample_recording_name
 from bogiemon.judgement.models import model_paths
 
 # A file is compared by its content up to this size (a DBC, a model, an include); a larger one (a

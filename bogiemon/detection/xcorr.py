@@ -21,13 +21,14 @@ counts every in-window pair once, plus the pairs whose y lies before the window 
 
     E[l] = sum_{n = s}^{s + l - 1} x[n] y[n - l].
 
-A_b is kept split in two spectra, the pairs whose y lies in hop b itself and those whose y lies
-in the K samples before it (by linearity, the second needs no extra FFT). When K <= H, E is
-exactly the second part of the window's first hop, so C = (sum_b A_b - E) / N is summed in the
-frequency domain and costs one inverse FFT per window; when K > H, E is the correlation of the
-window's first K samples of x with the K samples of y before it, one more small FFT product.
-Per hop that is a few FFTs of length ~H + K instead of a correlation of the whole window. Each
-window is summed afresh from the stored spectra (no running sum), so rounding never accumulates.
+A_b is one FFT product (the hop's x against the hop's y and the K samples of y before it) taken
+back to the lag domain at once and kept as its K + 1 lags: a window's M hops take M x (K + 1)
+numbers per pair and direction (1.8 MiB at the daemon's defaults, where the two spectra per hop
+kept before took 7.3 MiB, the largest part of the daemon's memory after its imports). E is the
+correlation of the window's first K samples of x with the K samples of y before it, one small FFT
+product per window, and C = (sum_b A_b - E) / N. Per hop that is a few FFTs of length ~H + K
+instead of a correlation of the whole window. Each window is summed afresh from the stored lags
+(no running sum), so rounding never accumulates.
 """
 
 from __future__ import annotations
@@ -80,6 +81,11 @@ def xcorr_direct(x: NDArray[np.float64], y: NDArray[np.float64], max_lag_n: int)
         else:
             out[k + max_lag_n] = np.dot(x[: n + k], y[-k:])
     return out / n
+
+
+# Hops of room after the held samples in the history buffer: the held samples are copied back
+# once every SLACK_HOPS hops.
+SLACK_HOPS = 4
 
 
 @dataclass(frozen=True)
@@ -142,17 +148,15 @@ class StreamingCrossCorrelator:
         self._lag_take: slice | list[int] = slice(lag[0], lag[-1] + 1) if lag == list(range(lag[0], lag[-1] + 1)) else lag
         n_lag_ch = len(self._lag_channels)
         # The last window_n + K samples of the lagged channels, [s - K, s + N) at emission time, are
-        # rows [end - held, end) of a buffer several windows long: a hop is appended, and the held
-        # rows move to its start only when it is full (copying them every hop cost a tenth of the core).
+        # rows [end - held, end) of a buffer SLACK_HOPS hops longer: a hop is appended, and the held
+        # rows move to its start only when it is full (copying them every hop cost a tenth of the
+        # core, every fourth hop about a fortieth; a whole window of room took 1 MiB more at the defaults).
         self._held_n = window_n + max_lag_n
-        self._buffer = np.zeros((self._held_n + max(self._held_n, 8 * hop_n), n_lag_ch))
+        self._buffer = np.zeros((self._held_n + SLACK_HOPS * hop_n, n_lag_ch))
         self._end = self._held_n
         self._hops = HopAssembler(hop_n, n_channels)
-        # Per hop, per pair and direction (x leads, y leads): the cross-spectra of the hop against
-        # itself and against the K samples before it; and the zero-lag sums.
-        n_bins = self._nfft_block // 2 + 1
-        self._spec_in = np.zeros((self._blocks_per_window, len(self._pairs), 2, n_bins), dtype=np.complex128)
-        self._spec_pre = np.zeros_like(self._spec_in)
+        # Per hop, per pair and direction (x leads, y leads), lags 0..K: A_b; and the zero-lag sums.
+        self._lags = np.zeros((self._blocks_per_window, len(self._pairs), 2, max_lag_n + 1))
         self._block_zero_lag = np.zeros((self._blocks_per_window, len(self._zero_lag_pairs)))
         self.reset()
 
@@ -190,43 +194,37 @@ class StreamingCrossCorrelator:
         self._n_hops += 1
 
         if self._pairs:
-            # Spectra of each lagged channel's hop (after K zeros) and of the K samples before it.
+            # Spectra of each lagged channel's hop (after K zeros) and of the hop with the K samples
+            # before it: their product pairs the hop with both, lags 0..K without wrapping around.
             padded = np.zeros((self._nfft_block, hist.shape[1]))
             padded[k_max : k_max + h] = hist[-h:]
             spec_hop = fft.rfft(padded, axis=0)
-            spec_pre = fft.rfft(hist[-(h + k_max) :], n=self._nfft_block, axis=0) - spec_hop
-            self._cross_spectra(spec_hop, spec_hop, out=self._spec_in[slot])
-            self._cross_spectra(spec_hop, spec_pre, out=self._spec_pre[slot])
+            spec_reach = fft.rfft(hist[-(h + k_max) :], n=self._nfft_block, axis=0)
+            cross = self._cross_spectra(spec_hop, spec_reach)
+            self._lags[slot] = fft.irfft(cross, n=self._nfft_block, axis=2)[:, :, : k_max + 1]
         for p, (i, j) in enumerate(self._zero_lag_pairs):
             self._block_zero_lag[slot, p] = np.dot(hop[:, i], hop[:, j])
 
         if self._n_hops < self._blocks_per_window:
             return None
-        return self._emit(first_slot=self._n_hops % self._blocks_per_window)
+        return self._emit()
 
-    def _cross_spectra(
-        self, spec_lead: NDArray[np.complex128], spec_lag: NDArray[np.complex128], out: NDArray[np.complex128] | None = None
-    ) -> NDArray[np.complex128]:
-        """(n_pairs, 2, bins): lead(x) * conj(lag(y)), then lead(y) * conj(lag(x)), per pair (into
-        out, a hop's slot, when given: no temporary the size of the slot)."""
+    def _cross_spectra(self, spec_lead: NDArray[np.complex128], spec_lag: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        """(n_pairs, 2, bins): lead(x) * conj(lag(y)), then lead(y) * conj(lag(x)), per pair."""
         i, j = self._pair_cols
         x_lead, y_lead = spec_lead[:, i].T, spec_lead[:, j].T  # (n_pairs, bins)
         x_lag, y_lag = spec_lag[:, i].T, spec_lag[:, j].T
-        if out is None:
-            out = np.empty((len(self._pairs), 2, spec_lead.shape[0]), dtype=np.complex128)
+        out = np.empty((len(self._pairs), 2, spec_lead.shape[0]), dtype=np.complex128)
         np.multiply(x_lead, np.conj(y_lag), out=out[:, 0])
         np.multiply(y_lead, np.conj(x_lag), out=out[:, 1])
         return out
 
-    def _emit(self, first_slot: int) -> WindowCorrelations:
+    def _emit(self) -> WindowCorrelations:
         k_max, n, h = self.max_lag_n, self.window_n, self.hop_n
         total = np.zeros((len(self._pairs), 2, k_max + 1))
         if self._pairs:
-            spec = self._spec_in.sum(axis=0) + self._spec_pre.sum(axis=0)
-            if k_max <= h:  # the pairs reaching before the window are all in its first hop
-                spec -= self._spec_pre[first_slot]
-            total = fft.irfft(spec, n=self._nfft_block, axis=2)[:, :, : k_max + 1]
-            if k_max > h:
+            total = self._lags.sum(axis=0)
+            if k_max > 0:  # the pairs of the window's first hops whose y lies before the window
                 total -= self._head_correction()
         lagged = np.empty((len(self._pairs), 2 * k_max + 1))
         lagged[:, k_max:] = total[:, 0, :]  # k >= 0: x[n] y[n - k]

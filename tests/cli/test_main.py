@@ -54,6 +54,18 @@ def test_the_run_command_loads_neither_the_lab_nor_the_simulator_nor_matplotlib_
     assert _forbidden(modules) == []
 
 
+# What `run` on CAN (the shipped config's source) does not use, left for the sources, the recorder
+# and the delivery that need them: every recording and log reader, the serial port, MQTT's client.
+NOT_ON_A_CAN_RUN = ("bogiemon.drivers.recording", "bogiemon.drivers.replay", "bogiemon.drivers.canlog", "bogiemon.drivers.serial_source",
+                    "bogiemon.daemon.delivery.paho_transport", "serial", "paho")  # fmt: skip
+
+
+def test_the_run_command_on_can_loads_no_recording_reader_serial_port_or_mqtt_client() -> None:
+    modules = _loaded(RUN_PATH)
+    assert "bogiemon.drivers.can_source" in modules
+    assert [m for m in modules if any(m == unused or m.startswith(unused + ".") for unused in NOT_ON_A_CAN_RUN)] == []
+
+
 def test_the_command_line_imports_only_argparse_and_its_command_modules_to_parse() -> None:
     modules = _loaded("import json, sys\nfrom bogiemon.cli.main import build_parser\nbuild_parser()\nprint(json.dumps(sorted(sys.modules)))")
     assert _forbidden(modules) == []

@@ -38,7 +38,6 @@ from bogiemon.daemon.delivery.connection import (
     describe_connect_error,
     describe_refusal,
 )
-from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.messages import (
     EVENT_SCHEMA,
     STATE_OFFLINE,
@@ -156,7 +155,7 @@ class OutboxPublisher:
         status_source: StatusSource | None = None,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
-        transport_factory: TransportFactory = paho_transport,
+        transport_factory: TransportFactory | None = None,
     ) -> None:
         self.settings = settings
         self.state_dir = Path(state_dir)
@@ -166,6 +165,10 @@ class OutboxPublisher:
         self.error: BaseException | None = None  # an internal error that ended the thread
         self._clock = clock
         self._wall_clock = wall_clock
+        if transport_factory is None:  # paho, loaded only where [mqtt] is on (a gateway without MQTT never imports it)
+            from bogiemon.daemon.delivery.paho_transport import paho_transport
+
+            transport_factory = paho_transport
         self._transport_factory = transport_factory
         self._topics = settings.topics
         self._client_id = settings.client_id or f"bogiemon-{settings.wagon_id}"
