@@ -28,8 +28,8 @@ fleet-demo: $(STAMP)
 	$(VENV)/bin/bogiemon fleet analyze $(FLEET_DEMO)/fleet -o $(FLEET_DEMO)/windows
 	$(VENV)/bin/bogiemon fleet calibrate --uncommissioned --fleet $(FLEET_DEMO)/fleet --windows $(FLEET_DEMO)/windows
 	$(VENV)/bin/bogiemon fleet judge $(FLEET_DEMO)/windows -o $(FLEET_DEMO)/judged
-	$(VENV)/bin/bogiemon fleet report $(FLEET_DEMO)/judged -o $(FLEET_DEMO)/report.html
-	@echo "make fleet-demo: the fleet report is $(abspath $(FLEET_DEMO))/report.html"
+	$(VENV)/bin/bogiemon fleet report $(FLEET_DEMO)/judged -o $(FLEET_DEMO)/report
+	@echo "make fleet-demo: the work list is $(abspath $(FLEET_DEMO))/report/index.html"
 
 # The static checks, run first by `make test`: ruff ([tool.ruff] in pyproject.toml: pyflakes,
 # pycodestyle, bugbear, pyupgrade) and mypy ([tool.mypy]: bogiemon/, tests/ and bench/; strict over

@@ -109,6 +109,7 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
     events: list[tuple[int, Event]] = []
     gaps = GapMemory()  # the gaps of the day's segment starts, counted across days as the monitor counts them
     last_end_s = -math.inf
+    last_data_s: float | None = None  # the newest window's end: how fresh the wagon's data are
     issues: list[Issue] = []
     days: list[str] = []
     # The footers first (cheap), so that the last day to judge is known before the days are read
@@ -153,7 +154,7 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
             events += [(len(events) + 1 + i, e) for i, e in enumerate(verdict.events)]
             series(verdict)
         if windows:
-            last_end_s = windows[-1].end_s
+            last_end_s = last_data_s = windows[-1].end_s
     mean_evidence: dict[str, MeanEvidence] = {
         load: {
             "first_day": np.mean(ev.first_day, axis=0).tolist() if ev.first_day else [],
@@ -169,7 +170,7 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
         mode=judge.mode, sensor_reported=dict(judge.health.state.reported), not_judged=coverage.reported,
         unjudged_running_s=coverage.unjudged_running_s, windows=c.windows, judged=c.judged, gated=c.gated,
         sensor_fault_windows=c.sensor_fault_windows, trend=_finite(series.trend), trend_alarm=_finite(series.trend_alarm),
-        days=tuple(days), evidence=mean_evidence, issues=tuple(issues),
+        days=tuple(days), evidence=mean_evidence, issues=tuple(issues), last_data_s=last_data_s,
     )  # fmt: skip
 
 
@@ -337,6 +338,8 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
         "judged": j.judged,
         "gated": j.gated,
         "sensor_fault_windows": j.sensor_fault_windows,
+        "last_data_s": j.last_data_s,
+        "sensor_corners": {ch: getattr(wagon.config.sensors, ch).value for ch in ("a1", "a2", "a3")},
         "fleet_relative": relative,
         "notes": notes,
     }

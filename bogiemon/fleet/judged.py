@@ -40,3 +40,4 @@ class WagonJudged:
     days: tuple[str, ...]
     evidence: dict[str, MeanEvidence]  # load -> first/last day mean coupling vector, windows
     issues: tuple[Issue, ...]
+    last_data_s: float | None = None  # the end of its newest window

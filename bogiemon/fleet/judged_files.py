@@ -121,7 +121,8 @@ def _is(value: Any, kind: str) -> bool:
 
 # Field -> kind; a trailing "?" allows null.
 # 2: the series' mode in the daemon's words ("normal", "suspected", "confirmed").
-JUDGED_FORMAT = 2
+# 3: each wagon's last_data_s (its newest window's end) and sensor_corners (channel -> corner).
+JUDGED_FORMAT = 3
 TOP_FIELDS = {"format": "int", "generated_utc": "str", "fleet": "str", "wagons": "list", "inputs": "obj"}
 INPUT_FIELDS = {"wagons": "int", "recordings": "int", "skipped": "list"}
 SKIPPED_FIELDS = {"path": "str", "reason": "str"}
@@ -143,6 +144,8 @@ WAGON_FIELDS = {
     "judged": "int",
     "gated": "int",
     "sensor_fault_windows": "int",
+    "last_data_s": "num?",
+    "sensor_corners": "obj",
     "fleet_relative": "obj?",
     "notes": "list",
 }
@@ -214,6 +217,8 @@ def read_wagons_json(path: Path) -> dict[str, Any]:
             if not isinstance(problems, list):
                 raise ReportError(f"{path}: {where}.sensor_problems.{printable(channel, 16)}: expected a list of strings")
             _strings(problems, path, f"{where}.sensor_problems.{printable(channel, 16)}")
+        if not all(isinstance(c, str) for c in entry["sensor_corners"].values()):
+            raise ReportError(f"{path}: {where}.sensor_corners: expected channel -> corner names (strings)")
         if entry["wagon"] in seen:
             raise ReportError(f"{path}: {where}: wagon {printable(entry['wagon'])!r} is listed twice")
         seen.add(entry["wagon"])

@@ -45,6 +45,8 @@ class WagonSpec:
     type: str = "Sgns-Y25"
     commissioned: tuple[str, ...] = ("full", "tare")
     notes: tuple[str, ...] = ()
+    bogie: str | None = None  # the bogie its events name (None: they name none, as a one-bogie gateway's)
+    days_behind: int = 0  # its data end this many days before the others' (a gateway that stopped)
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,11 @@ DEFAULT_FLEET = (
     WagonSpec("31-80-4557-006", "suspected", type="Sgns-Y25-light"),
     WagonSpec("31-80-4557-005", "no_data", commissioned=(), notes=("no recordings",)),
 )
-DIAGNOSIS = {"corner": "leading-left", "kind": "spring-softer", "corner_confidence": 0.84, "kind_confidence": 0.91}
+DIAGNOSIS = {
+    "corner": "leading-left or trailing-right", "corners": ["leading-left", "trailing-right"], "kind": "unknown", "corner_confidence": 0.84,
+    "kind_confidence": 0.0,
+}  # fmt: skip
+CORNERS = {"a1": "leading-left", "a2": "leading-right", "a3": "trailing-left"}
 
 
 def _scores(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -98,7 +104,8 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
     wagon.columns = cols
     if spec.kind == "no_data":
         return wagon
-    day0 = datetime.fromisoformat(FIRST_DAY).replace(tzinfo=UTC)
+    day0 = datetime.fromisoformat(FIRST_DAY).replace(tzinfo=UTC) - timedelta(days=spec.days_behind)
+    bogie = {} if spec.bogie is None else {"bogie": spec.bogie}
     n_total = shape.days * shape.recordings_per_day * shape.windows_per_recording
     scores = _scores(spec.kind, n_total, rng)
     mode, over_alarm, clean, trend, i = "NORMAL", 0, 0, 0.0, 0
@@ -115,7 +122,7 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                 judged = not gate and not faulty
                 if faulty and not wagon.reported_fault:
                     wagon.reported_fault = True
-                    wagon.events.append(_event(time_s, EventKind.SENSOR_FAULT, rng, details={"problems": {"a3": ["noisy"]}, "reported": {"a3": ["noisy"]}}))
+                    wagon.events.append(_event(time_s, EventKind.SENSOR_FAULT, rng, details={"problems": {"a3": ["noisy"]}, "reported": {"a3": ["noisy"]}, **bogie}))
                 score = float(scores[i])
                 if judged:
                     trend = 0.98 * trend + 0.02 * score / 8.0
@@ -126,13 +133,13 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                     clean = clean + 1 if score <= lv["warning"] else 0
                     if mode != "CONFIRMED" and over_alarm >= CONFIRM_AFTER:
                         mode = "CONFIRMED"
-                        wagon.events.append(_event(time_s, EventKind.CONFIRMED, rng, {"fused_score": score}))
+                        wagon.events.append(_event(time_s, EventKind.CONFIRMED, rng, {"fused_score": score}, {"diagnosis": dict(DIAGNOSIS), **bogie}))
                     elif mode == "NORMAL" and score > lv["warning"]:
                         mode = "SUSPECTED"
-                        wagon.events.append(_event(time_s, EventKind.SUSPECTED, rng, {"fused_score": score}))
+                        wagon.events.append(_event(time_s, EventKind.SUSPECTED, rng, {"fused_score": score}, dict(bogie)))
                     elif mode == "SUSPECTED" and clean >= CLEAR_AFTER:
                         mode = "NORMAL"
-                        wagon.events.append(_event(time_s, EventKind.CLEARED, rng, {}))
+                        wagon.events.append(_event(time_s, EventKind.CLEARED, rng, {}, dict(bogie)))
                 nan = float("nan")
                 cols["time_s"].append(time_s)
                 cols["judged"].append(judged)
@@ -197,6 +204,8 @@ def _summary(w: _Wagon, seqs: list[int]) -> dict[str, Any]:
         "judged": int(sum(judged)),
         "gated": sum(1 for g in cols["gate"] if g),
         "sensor_fault_windows": sum(1 for p in cols["sensor_problems"] if p),
+        "last_data_s": cols["time_s"][-1] if n else None,
+        "sensor_corners": dict(CORNERS),
         "fleet_relative": None
         if n == 0
         else {
@@ -261,7 +270,7 @@ def write_judged(
     if sort:
         entries.sort(key=lambda e: -e["attention"])
     doc = {
-        "format": 2,
+        "format": 3,
         "generated_utc": "2026-12-02T10:00:00Z",
         "fleet": fleet,
         "wagons": entries,
