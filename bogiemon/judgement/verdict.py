@@ -18,6 +18,8 @@ from typing import Any
 
 from bogiemon.judgement.coverage import CoverageState, CoverageTracker
 from bogiemon.judgement.decision import Decider, DecisionSettings, DecisionState, Judgement
+from bogiemon.judgement.rules import Level
+from bogiemon.judgement.diagnosis import diagnose
 from bogiemon.judgement.events import Event
 from bogiemon.judgement.settings import HealthSettings
 from bogiemon.judgement.health import WindowHealth, assess_window
@@ -183,20 +185,43 @@ class WindowJudge:
     def _judge(self, window: WindowIndicators, status: Status, gaps_last_hour: int) -> WindowVerdict:
         s = self.settings
         health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
+        # Noise the floor alone saw cannot move the couplings judged (judgement/health.py, "A SENSOR
+        # FAULT NEVER HIDES A SUSPENSION FAULT"): the suspension is judged on them, the sensor told beside.
+        if s.health.judge_through_floor_noise and health.couplings_readable and not self.health.holds_judgement:
+            judged = self._judge_suspension(window, status, health, [])
+            sensor = self.health.update(window, health, holds=False, suspension=self._one_corner(judged))
+            return dataclasses.replace(judged, events=(*sensor, *judged.events))
         events = self.health.update(window, health)
+        # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
+        # window's checks (noise that the track's own excitation hides) and still couple the modes.
+        if not health.judgeable or self.health.holds_judgement:
+            return WindowVerdict(window, status, health, None, self.mode, tuple(events))
+        return self._judge_suspension(window, status, health, events)
+
+    def _judge_suspension(self, window: WindowIndicators, status: Status, health: WindowHealth, events: list[Event]) -> WindowVerdict:
+        s = self.settings
 
         def verdict(**judged: Any) -> WindowVerdict:
             return WindowVerdict(window, status, health, judged.pop("judgement", None), self.mode, tuple(events), **judged)
 
-        # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
-        # window's checks (noise that the track's own excitation hides) and still couple the modes.
-        if not health.judgeable or self.health.faulted:
-            return verdict()
         features = WindowFeatures(window.spectra, s.geometry) if window.spectra is not None else None
         load_vector = finite_or_none(features.load) if features is not None else None
         choice = choose_load(s.load, load_vector, excitation_of(window), s.load_states, s.load_discriminant, s.load_model)
         if choice.load is None:
             return verdict(unfamiliar=choice.unjudged, features=features)
         judgement, decided = self.decider.update(window, choice.load, choice.context(), features, choice.level_margin)
-        events += decided
+        events = [*events, *decided]
         return verdict(judgement=judgement, load=choice.load, p_full=choice.p_full, features=features)
+
+    def _one_corner(self, verdict: WindowVerdict) -> dict[str, Any] | None:
+        """What a judged window's couplings say of a one-corner suspension fault: the diagonal pair
+        its shift's pitch-roll sign names, when the window is at warning level or above (None else)."""
+        j, load = verdict.judgement, verdict.load
+        baseline = self.settings.decision.baselines.get(load) if load is not None else None
+        if j is None or load is None or baseline is None or j.shift is None or j.worst < Level.WARNING:
+            return None
+        found = diagnose([j.shift], baseline, load)
+        if not found.corners:
+            return None
+        score, _, alarm = j.headline()
+        return {"corners": [c.value for c in found.corners], "fused_score": score, "alarm": alarm, "best_match": found.best_match}
