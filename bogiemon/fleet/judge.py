@@ -39,6 +39,7 @@ from bogiemon.fleet.judged import MeanEvidence, WagonJudged
 from bogiemon.fleet.judged_files import JUDGED_FORMAT, WagonState
 from bogiemon.fleet.cluster import DaskRunner, InProcess, Runner
 from bogiemon.fleet.layout import Day, Fleet, Issue, Wagon, scan_fleet
+from bogiemon.fleet.worklist import DEFAULT_BOGIE
 from bogiemon.fleet.paths import make_room, output_folder, shown, write_parquet
 from bogiemon.fleet.windows_files import PartitionError, partition_path, partition_place, read_footer, read_partition, read_summary
 
@@ -166,12 +167,27 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
     }
     c, coverage = judge.counts, judge.coverage.state
     return WagonJudged(
+        diagnosis_now=_diagnosis_now(judge, events),
         wagon_id=wagon.wagon_id, events=tuple(events), series=pa.Table.from_pydict(series.columns, schema=SERIES_SCHEMA),
         mode=judge.mode, sensor_reported=dict(judge.health.state.reported), not_judged=coverage.reported,
         unjudged_running_s=coverage.unjudged_running_s, windows=c.windows, judged=c.judged, gated=c.gated,
         sensor_fault_windows=c.sensor_fault_windows, trend=_finite(series.trend), trend_alarm=_finite(series.trend_alarm),
         days=tuple(days), evidence=mean_evidence, issues=tuple(issues), last_data_s=last_data_s,
     )  # fmt: skip
+
+
+def _diagnosis_now(judge: WindowJudge, events: Sequence[tuple[int, Event]]) -> dict[str, Any] | None:
+    """The diagnosis of an alarm in force at the period's end from all the running since it was
+    confirmed: the decision's own diagnosis of its trend's mean shift in the alarm's load state
+    (judgement/decision.py trend_diagnosis). The CONFIRMED event's was read off the few windows that
+    confirmed it; a day of running later the pitch-roll sign is often clear where it was not then."""
+    if judge.mode is not Mode.CONFIRMED:
+        return None
+    confirmed = next((e for _, e in reversed(events) if e.kind is EventKind.CONFIRMED), None)
+    load = confirmed.details.get("load") if confirmed is not None else None
+    if load not in tuple(LoadState):
+        return None
+    return judge.decider.trend_diagnosis(LoadState(load)).as_dict()
 
 
 def _not_judged(exc: PartitionError) -> Issue:
@@ -327,6 +343,8 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
             "seq": last_seq,
         },  # fmt: skip
         "diagnosis": diagnosis,
+        # Per bogie (worklist.bogie_of's names; one bogie judged here: "1").
+        "diagnosis_now": {} if j.diagnosis_now is None else {DEFAULT_BOGIE: j.diagnosis_now},
         "sensor_problems": j.sensor_reported,
         "trend": j.trend,
         "trend_alarm": j.trend_alarm,

@@ -15,7 +15,7 @@ from bogiemon.fleet import svg
 from bogiemon.fleet.judged_files import EVENT_KINDS, WagonPage
 from bogiemon.fleet.plot import ALARM_COLOUR, MAX_IDLE_S, SCORE_COLOUR, TREND_COLOUR, WARNING_COLOUR, wagon_plot
 from bogiemon.fleet.style import WAGON_CSS, badge, e, fmt, page
-from bogiemon.fleet.worklist import WorkLine, bogie_of, utc
+from bogiemon.fleet.worklist import DEFAULT_BOGIE, WorkLine, best_diagnosis, bogie_of, utc
 
 MAX_EVENTS_LISTED = 500  # the plot marks every event
 
@@ -86,7 +86,7 @@ def render(wp: WagonPage, line: WorkLine, title: str) -> tuple[str, int]:
         ("Changed", e(f"{line.changed}{'; ' + line.changed_text if line.changed_text else ''}")),
         ("Last data", e(utc(line.last_data_s)) + (' <span class="stale">stale</span>' if line.stale else "")),
         ("Period", e(period)),
-        ("Diagnosis", _diagnosis(entry.get("diagnosis"))),
+        ("Diagnosis", _diagnosis(best_diagnosis(entry.get("diagnosis"), (entry.get("diagnosis_now") or {}).get(DEFAULT_BOGIE)))),
         ("Sensors", e(", ".join(f"{ch} at {c}" for ch, c in corners.items()))),
         ("Type", e(f"{entry['type']}; commissioned for {', '.join(entry['commissioned']) or 'no load state'}")),
     ]

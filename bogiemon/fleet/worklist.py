@@ -68,6 +68,9 @@ class BogieState:
     diagnosis: Mapping[str, Any] | None = None  # the CONFIRMED event's
     sensors: dict[str, list[str]] = field(default_factory=dict)  # channel -> problems, while reported
     sensors_since_s: float | None = None
+    # The corners a SENSOR_FAULT said the couplings pointed at (a one-corner suspension fault told
+    # beside the sensor: judgement/health.py), while the fault is reported.
+    sensor_suspension: tuple[str, ...] = ()
     not_judged_since_s: float | None = None  # a NOT_JUDGED in force since
 
     @property
@@ -102,8 +105,12 @@ def replay(events: Iterable[EventMessage], until_s: float = math.inf) -> dict[st
             if not s.sensors:
                 s.sensors_since_s = m.time_s
             s.sensors = {str(ch): [str(p) for p in ps] for ch, ps in reported.items() if isinstance(ps, list)} or {"?": []}
+            suspension = m.details.get("suspension")
+            corners = suspension.get("corners") if isinstance(suspension, dict) else None
+            if isinstance(corners, list) and corners and all(isinstance(c, str) for c in corners):
+                s.sensor_suspension = tuple(corners)
         elif m.kind == "SENSOR_CLEARED":
-            s.sensors, s.sensors_since_s = {}, None
+            s.sensors, s.sensors_since_s, s.sensor_suspension = {}, None, ()
         elif m.kind == "NOT_JUDGED":
             s.not_judged_since_s = m.time_s
         elif m.kind == "JUDGED_AGAIN":
@@ -181,6 +188,12 @@ def utc(time_s: float | None) -> str:
     return "" if time_s is None else time.strftime("%Y-%m-%d %H:%MZ", time.gmtime(time_s))
 
 
+def best_diagnosis(at_alarm: Mapping[str, Any] | None, now: Mapping[str, Any] | None) -> Mapping[str, Any] | None:
+    """The diagnosis a line tells: the one from all the running since the alarm (the judge's
+    diagnosis_now) when it names a pair, else the alarm's own."""
+    return now if now is not None and now.get("corners") else at_alarm
+
+
 def _corner_words(diagnosis: Mapping[str, Any] | None) -> str:
     corners = diagnosis.get("corners") if diagnosis else None
     if isinstance(corners, list) and corners and all(isinstance(c, str) for c in corners):
@@ -200,10 +213,12 @@ def _bogie_list(bogies: Sequence[str]) -> str:
     return "bogie " + " and ".join(bogies) if len(bogies) <= 1 else "bogies " + ", ".join(bogies[:-1]) + " and " + bogies[-1]
 
 
-def action(state: WagonState, bogies: Mapping[str, BogieState], entry: Mapping[str, Any], stale_since_s: float | None) -> tuple[str, tuple[str, ...]]:
-    """What to do, in one sentence, and the bogies it names."""
+def action(state: WagonState, bogies: Mapping[str, BogieState], entry: Mapping[str, Any], stale_since_s: float | None) -> tuple[str, tuple[str, ...], int | None]:
+    """What to do, in one sentence, the bogies it names and within how many days."""
     corners = entry.get("sensor_corners") or {}
-    due = DUE_DAYS.get(state)
+    pointed = any(b.sensors and b.sensor_suspension for b in bogies.values())
+    # A sensor whose couplings point at a corner is as urgent as the spring they point at.
+    due = DUE_DAYS[WagonState.CONFIRMED] if pointed else DUE_DAYS.get(state)
     within = f", within {due} days" if due else ""
     confirmed = sorted(b for b, s in bogies.items() if s.mode == "CONFIRMED")
     suspected = sorted(b for b, s in bogies.items() if s.mode == "SUSPECTED")
@@ -211,14 +226,22 @@ def action(state: WagonState, bogies: Mapping[str, BogieState], entry: Mapping[s
     parts: list[str] = []
     named: list[str] = []
     if confirmed:
-        where = "; ".join(f"bogie {b}, {_corner_words(bogies[b].diagnosis)}" for b in confirmed)
+        now = entry.get("diagnosis_now") or {}
+        where = "; ".join(f"bogie {b}, {_corner_words(best_diagnosis(bogies[b].diagnosis, now.get(b)))}" for b in confirmed)
         parts.append(f"Inspect the primary springs of {where}{within}")
         named += confirmed
-    if faulty:
-        checks = "; ".join(_sensor_words(b, ch, ps, corners) for b in faulty for ch, ps in sorted(bogies[b].sensors.items()))
-        head = "also check the sensor: " if parts else "Check the sensor: "
-        parts.append(f"{head}{checks}; fix its cable or mounting{'' if parts[:-1] else within}")
-        named += [b for b in faulty if b not in named]
+    for b in faulty:
+        sensors = "; ".join(_sensor_words(b, ch, ps, corners) for ch, ps in sorted(bogies[b].sensors.items()))
+        pair = bogies[b].sensor_suspension
+        if b in confirmed:  # the spring first; the sensor once it is fixed
+            said = f"{sensors}, as a broken spring at its corner makes it: check it once the spring is fixed" if pair else f"also check the sensor: {sensors}"
+        elif pair:  # a sensor fault never told alone when the couplings point at a corner
+            said = (f"inspect the primary springs of bogie {b}, {' or '.join(pair)} axle box, and the sensor: {sensors}; "
+                    f"the couplings moved as a broken spring there moves them")  # fmt: skip
+        else:
+            said = f"check the sensor: {sensors}; fix its cable or mounting"
+        parts.append(said + ("" if parts else within))
+        named += [b] if b not in named else []
     if suspected and not confirmed:
         where = _bogie_list(suspected)
         head = "also look" if parts else "Look"
@@ -238,7 +261,9 @@ def action(state: WagonState, bogies: Mapping[str, BogieState], entry: Mapping[s
     if not parts:
         parts.append("Nothing to do")
     text = "; ".join(parts)
-    return text[0].upper() + text[1:] + ".", tuple(named)
+    if not named and state not in (WagonState.NO_DATA, WagonState.NOT_JUDGED):
+        due = None
+    return text[0].upper() + text[1:] + ".", tuple(named), due
 
 
 def how_sure(state: WagonState, entry: Mapping[str, Any]) -> Sure:
@@ -285,7 +310,7 @@ def work_line(page: WagonPage, compare_s: float, fleet_newest_s: float | None) -
     bogies = replay(events)
     state = WagonState(e["state"])  # the judge's; the replay agrees with it (tested) and adds the bogies
     stale = bool(last_data_s is not None and fleet_newest_s is not None and fleet_newest_s - last_data_s > STALE_AFTER_S)
-    text, named = action(state, bogies, e, last_data_s if stale else None)
+    text, named, due = action(state, bogies, e, last_data_s if stale else None)
     first_s = page.series.time_s[0] if page.series is not None and page.series.time_s.size else None
     before = wagon_state(replay(events, compare_s), has_data and (first_s is None or first_s <= compare_s))
     changed, changed_text = change(before, state, sum(1 for m in events if m.time_s > compare_s))
@@ -294,7 +319,7 @@ def work_line(page: WagonPage, compare_s: float, fleet_newest_s: float | None) -
     kinds = [m.kind for m in events]
     notes = tuple(dict.fromkeys(n for n in e["notes"] if n and n not in text))
     return WorkLine(
-        wagon=e["wagon"], type=e["type"], state=state, bogies=named, action=text, due_days=DUE_DAYS.get(state) if named or state is WagonState.NO_DATA or state is WagonState.NOT_JUDGED else None,
+        wagon=e["wagon"], type=e["type"], state=state, bogies=named, action=text, due_days=due,
         since_s=since if since is not None else first_s, sure=how_sure(state, e), changed=changed, changed_text=changed_text,
         last_data_s=last_data_s, stale=stale, sensor_fault_windows=int(e["sensor_fault_windows"]), windows=int(e["windows"]),
         judged=int(e["judged"]), sensor_faults=kinds.count("SENSOR_FAULT"), suspicions=kinds.count("SUSPECTED"),

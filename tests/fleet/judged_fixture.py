@@ -47,6 +47,8 @@ class WagonSpec:
     notes: tuple[str, ...] = ()
     bogie: str | None = None  # the bogie its events name (None: they name none, as a one-bogie gateway's)
     days_behind: int = 0  # its data end this many days before the others' (a gateway that stopped)
+    # The corners its SENSOR_FAULT says the couplings point at (a spring at the sensor's corner).
+    sensor_suspension: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -106,6 +108,7 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
         return wagon
     day0 = datetime.fromisoformat(FIRST_DAY).replace(tzinfo=UTC) - timedelta(days=spec.days_behind)
     bogie = {} if spec.bogie is None else {"bogie": spec.bogie}
+    pointed = {"suspension": {"corners": list(spec.sensor_suspension), "fused_score": 80.0, "alarm": 67.0}} if spec.sensor_suspension else {}
     n_total = shape.days * shape.recordings_per_day * shape.windows_per_recording
     scores = _scores(spec.kind, n_total, rng)
     mode, over_alarm, clean, trend, i = "NORMAL", 0, 0, 0.0, 0
@@ -122,7 +125,7 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                 judged = not gate and not faulty
                 if faulty and not wagon.reported_fault:
                     wagon.reported_fault = True
-                    wagon.events.append(_event(time_s, EventKind.SENSOR_FAULT, rng, details={"problems": {"a3": ["noisy"]}, "reported": {"a3": ["noisy"]}, **bogie}))
+                    wagon.events.append(_event(time_s, EventKind.SENSOR_FAULT, rng, details={"problems": {"a3": ["noisy"]}, "reported": {"a3": ["noisy"]}, **bogie, **pointed}))
                 score = float(scores[i])
                 if judged:
                     trend = 0.98 * trend + 0.02 * score / 8.0
@@ -193,6 +196,7 @@ def _summary(w: _Wagon, seqs: list[int]) -> dict[str, Any]:
         "attention": ATTENTION[state] + (0.0 if trend is None or not trend_alarm else round(trend / trend_alarm, 4)),
         "last_event": last_event,
         "diagnosis": dict(DIAGNOSIS) if spec.kind == "confirmed" else None,
+        "diagnosis_now": {},
         "sensor_problems": {"a3": ["noisy"]} if w.reported_fault else {},
         "trend": trend,
         "trend_alarm": trend_alarm,

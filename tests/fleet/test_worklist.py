@@ -40,6 +40,7 @@ def judged(tmp_path_factory: pytest.TempPathFactory) -> Path:
         WagonSpec(TWO_BOGIES, "confirmed", bogie="2"),
         WagonSpec("31-80-4557-021", "sensor_fault", bogie="1"),
         WagonSpec("31-80-4557-030", "normal", days_behind=5),
+        WagonSpec("31-80-4557-022", "sensor_fault", sensor_suspension=("trailing-left", "leading-right")),
         WagonSpec("=HYPERLINK(1)", "normal", type="+cmd", notes=("@SUM(A1)",)),
     )
     return write_judged(tmp_path_factory.mktemp("worklist") / "JUDGED", fleet)
@@ -69,6 +70,15 @@ def test_a_sensor_fault_names_the_sensor_its_corner_and_the_problem_in_words(lin
     assert line.sure.word == "sensor" and line.sure.figure == f"{line.sensor_fault_windows}/{line.windows} windows"
 
 
+def test_a_sensor_fault_whose_couplings_point_at_a_corner_is_never_told_as_a_sensor_alone(lines) -> None:
+    line = lines["31-80-4557-022"]
+    assert line.state is WagonState.SENSOR_FAULT and line.due_days == 2  # as urgent as the spring it may be
+    assert line.action == (
+        "Inspect the primary springs of bogie 1, trailing-left or leading-right axle box, and the sensor: sensor a3 of bogie 1 "
+        "(trailing-left axle box) reads noise; the couplings moved as a broken spring there moves them, within 2 days."
+    )
+
+
 def test_a_wagon_with_both_bogies_at_fault_has_one_line_naming_both(judged: Path) -> None:
     judged_doc = read_judged(judged)
     page = next(p for p in judged_doc.wagons if p.entry["wagon"] == TWO_BOGIES)
@@ -79,8 +89,8 @@ def test_a_wagon_with_both_bogies_at_fault_has_one_line_naming_both(judged: Path
     assert sorted(state) == ["1", "2"] and all(s.state is WagonState.CONFIRMED for s in state.values())
     from bogiemon.fleet.worklist import action
 
-    text, named = action(WagonState.CONFIRMED, state, page.entry, None)
-    assert named == ("1", "2")
+    text, named, due = action(WagonState.CONFIRMED, state, page.entry, None)
+    assert named == ("1", "2") and due == 2
     assert text == ("Inspect the primary springs of bogie 1, leading-left or trailing-right axle box; "
                     "bogie 2, leading-left or trailing-right axle box, within 2 days.")  # fmt: skip
 
