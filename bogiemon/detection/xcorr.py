@@ -42,6 +42,11 @@ from numpy.typing import NDArray
 from bogiemon.detection.hops import HopAssembler
 
 
+def RESUM_HOPS(hops_per_window: int) -> int:  # noqa: N802 - a rule of the module, read as a constant
+    """Hops between two afresh sums of the sliding one: once per window's worth of hops."""
+    return max(hops_per_window, 1)
+
+
 def next_fast_len(n: int) -> int:
     """The smallest 5-smooth number (2^a 3^b 5^c) >= n: a length pocketfft transforms fastest.
 
@@ -153,11 +158,18 @@ class StreamingCrossCorrelator:
         n_bins = self._nfft_block // 2 + 1
         self._spec_in = np.zeros((self._blocks_per_window, len(self._pairs), 2, n_bins), dtype=np.complex128)
         self._spec_pre = np.zeros_like(self._spec_in)
+        # The sliding sum of both over the held hops (module docstring), and the same with sliding off:
+        # the per-window path, summed afresh for every window (the reference it is checked against).
+        self._sum = np.zeros((len(self._pairs), 2, n_bins), dtype=np.complex128)
+        self.sliding = True
         self._block_zero_lag = np.zeros((self._blocks_per_window, len(self._zero_lag_pairs)))
         self.reset()
 
     def reset(self) -> None:
         """Start a new segment: nothing before this point is paired with what follows."""
+        self._spec_in.fill(0.0)
+        self._spec_pre.fill(0.0)
+        self._sum.fill(0.0)
         self._buffer.fill(0.0)
         self._end = self._held_n
         self._hops.reset()
@@ -195,8 +207,17 @@ class StreamingCrossCorrelator:
             padded[k_max : k_max + h] = hist[-h:]
             spec_hop = fft.rfft(padded, axis=0)
             spec_pre = fft.rfft(hist[-(h + k_max) :], n=self._nfft_block, axis=0) - spec_hop
+            if self.sliding:  # the hop leaving the window (zeros until the first window is full)
+                self._sum -= self._spec_in[slot]
+                self._sum -= self._spec_pre[slot]
             self._cross_spectra(spec_hop, spec_hop, out=self._spec_in[slot])
             self._cross_spectra(spec_hop, spec_pre, out=self._spec_pre[slot])
+            if self.sliding:
+                if self._n_hops % RESUM_HOPS(self._blocks_per_window) == RESUM_HOPS(self._blocks_per_window) - 1:
+                    self._sum = self.window_sum()  # afresh: rounding never accumulates past RESUM_HOPS
+                else:
+                    self._sum += self._spec_in[slot]
+                    self._sum += self._spec_pre[slot]
         for p, (i, j) in enumerate(self._zero_lag_pairs):
             self._block_zero_lag[slot, p] = np.dot(hop[:, i], hop[:, j])
 
@@ -222,7 +243,7 @@ class StreamingCrossCorrelator:
         k_max, n, h = self.max_lag_n, self.window_n, self.hop_n
         total = np.zeros((len(self._pairs), 2, k_max + 1))
         if self._pairs:
-            spec = self._spec_in.sum(axis=0) + self._spec_pre.sum(axis=0)
+            spec = self._sum.copy() if self.sliding else self.window_sum()
             if k_max <= h:  # the pairs reaching before the window are all in its first hop
                 spec -= self._spec_pre[first_slot]
             total = fft.irfft(spec, n=self._nfft_block, axis=2)[:, :, : k_max + 1]
@@ -234,6 +255,10 @@ class StreamingCrossCorrelator:
         start_index = (self._n_hops - self._blocks_per_window) * h
         zero_lag = self._block_zero_lag.sum(axis=0) / n
         return WindowCorrelations(start_index=start_index, lagged=lagged / n, zero_lag=zero_lag)
+
+    def window_sum(self) -> NDArray[np.complex128]:
+        """Both spectra summed afresh over the held hops: the per-window path."""
+        return np.asarray(self._spec_in.sum(axis=0) + self._spec_pre.sum(axis=0), dtype=np.complex128)
 
     def _head_correction(self) -> NDArray[np.float64]:
         """E for both directions of every pair: the window's first K samples against the K before it."""

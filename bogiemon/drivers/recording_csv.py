@@ -1,16 +1,23 @@
 """CSV recordings, plain or gzip-compressed: the reader (surveyed at the open, parsed by pyarrow's
 streaming CSV reader a block of whole lines at a time, a bad line found and named by a slow path
-that reads as pyarrow does) and the writer (6 decimals, the same bytes for the same samples)."""
+that reads as pyarrow does) and the writer (6 decimals, the same bytes for the same samples).
+
+A .csv.gz is decompressed once: at the open, within its bounds (drivers/files.py), into a private
+temporary copy that the survey and every later pass read as plain text (each pass used to
+decompress the whole stream again: the survey and the parse, twice an hour's 28 MB into 72 MB).
+The copy lives as long as the reader (a private folder removed with it)."""
 
 from __future__ import annotations
 
+import contextlib
 import gzip
 import os
 import re
+import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,9 +48,24 @@ class CsvRecordingReader(RecordingReader):
         super().__init__()
         self.path = path
         self._header_bytes = 0
+        self._plain: Path | None = None  # a compressed file's decompressed copy (module docstring)
+        self._plain_dir: tempfile.TemporaryDirectory[str] | None = None
+
+    def _text(self) -> UntrustedFile:
+        """The file's text, opened for one pass: the decompressed copy of a compressed file."""
+        if self._plain is None:
+            return open_untrusted(self.path, RECORDING_FILE, RecordingError)
+        f = open_untrusted(self._plain, RECORDING_FILE, RecordingError)
+        f.path = self.path  # its messages name the recording, not the copy
+        return f
 
     def open(self, min_samples: int) -> None:
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as raw, contextlib.ExitStack() as copying:
+            f = raw
+            if raw.compressed:  # the survey's reading, each chunk also written to the copy: one decompression
+                self._plain_dir = tempfile.TemporaryDirectory(prefix="bogiemon-csv-")
+                plain = Path(self._plain_dir.name) / "recording.csv"
+                f = cast(UntrustedFile, _Copying(raw, copying.enter_context(plain.open("xb"))))
             first_chunk = f.read(MAX_LINE_BYTES + 2)
             end = re.search(rb"\r\n|\r|\n", first_chunk)
             header = first_chunk[: end.start()] if end else first_chunk
@@ -53,13 +75,15 @@ class CsvRecordingReader(RecordingReader):
             try:
                 text = header.decode("utf-8-sig")
             except UnicodeDecodeError:
-                _drain(f)  # a damaged gzip stream inflates to garbage: call it damaged, not text
+                _drain(raw)  # a damaged gzip stream inflates to garbage: call it damaged, not text
                 self.error(f"not a text file: expected a CSV recording with header '{HEADER}'")
             if text.strip() != HEADER:
-                _drain(f)
+                _drain(raw)
                 shown = text.strip()[:60] or "an empty line"
                 self.error(f"line 1: expected the header '{HEADER}', found '{shown}'")
             survey = _survey(f, first_chunk[self._header_bytes :])
+        if raw.compressed:
+            self._plain = plain  # whole: the survey read the stream to its end
         self.n_samples = survey.rows
         self._check_whole(min_samples, _row_time(survey.first), _row_time(survey.last))
 
@@ -68,7 +92,7 @@ class CsvRecordingReader(RecordingReader):
 
     def _data_lines(self) -> Iterator[tuple[int, bytes]]:
         """(line number, bytes) of every line after the header."""
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self._text() as f:
             _skip(f, self._header_bytes)
             yield from f.lines(first_number=2)
 
@@ -98,7 +122,7 @@ class CsvRecordingReader(RecordingReader):
                 yield arrow_columns(batch)
 
         number = 2  # the first line of the block
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as f:
+        with self._text() as f:
             _skip(f, self._header_bytes)
             try:
                 for block in _line_blocks(f):
@@ -154,6 +178,25 @@ class _Survey:
     rows: int  # non-blank lines after the header
     first: bytes | None  # the first of them
     last: bytes | None  # the last of them
+
+
+class _Copying:
+    """A compressed UntrustedFile whose every read is also written to a copy (the stream
+    decompressed once: module docstring); everything else is the file's own."""
+
+    def __init__(self, f: UntrustedFile, copy: BinaryIO) -> None:
+        self._f, self._copy = f, copy
+
+    def read(self, size: int | None = -1) -> bytes:
+        data = self._f.read(size)
+        try:
+            self._copy.write(data)
+        except OSError as exc:
+            self._f.refuse(f"cannot be decompressed into a temporary copy ({exc.strerror or exc}); is the temporary folder full?")
+        return data
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
 
 
 class _LongLine(Exception):
