@@ -225,10 +225,10 @@ class JudgeSummary:
     issues: tuple[Issue, ...]
 
 
-def fleet_root_of(windows_dir: str | Path) -> Path:
-    """The fleet folder a windows dataset was analysed from (its _analysis.json)."""
+def fleet_root_of(windows_dir: str | Path) -> str:
+    """The fleet (a folder, or an object store's URL) a windows dataset was analysed from (its _analysis.json)."""
     try:
-        return Path(read_summary(Path(windows_dir), JudgeError).root)
+        return read_summary(Path(windows_dir), JudgeError).root
     except JudgeError as exc:
         raise JudgeError(f"{exc}; is {shown(windows_dir)} a windows dataset of `bogiemon fleet analyze`? Or name the fleet with --fleet") from None
 
@@ -245,7 +245,7 @@ def judge_fleet(
     if not Path(windows_dir).is_dir():
         raise JudgeError(f"{shown(windows_dir)}: no such windows dataset (run `bogiemon fleet analyze FLEET -o {shown(windows_dir)}` first)")
     fleet = scan_fleet(fleet_root if fleet_root is not None else fleet_root_of(windows_dir))
-    out = output_folder(out_dir, JudgeError, "JUDGED", {"WINDOWS": windows_dir, "FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
+    out = output_folder(out_dir, JudgeError, "JUDGED", {"WINDOWS": windows_dir, **fleet.local_inputs}).resolve()  # what lies inside it is checked against it
     judged = _judge_all(fleet, windows_dir, client, progress)
     relative = fleet_relative(fleet, judged)
     entries = []
