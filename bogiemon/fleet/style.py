@@ -50,9 +50,9 @@ WORK_CSS = f"""
 .counts button{{border:0;background:none;padding:0;margin-right:10px;cursor:pointer;font:inherit}}
 table.work{{border-collapse:collapse;width:100%}}
 .work th,.work td{{border-bottom:1px solid #e0e0e0;padding:4px 6px;text-align:left;vertical-align:top}}
-.work th{{position:sticky;top:0;background:#f5f5f5;cursor:pointer;font-size:12px;white-space:nowrap}}
+.work th{{position:sticky;top:0;background:#f5f5f5;cursor:pointer;font-size:12px}}
 .work td.id{{min-width:9.5em;overflow-wrap:anywhere;font-weight:600}}.work td.act{{min-width:18em}}
-.work td.n{{white-space:nowrap}}
+.nw{{white-space:nowrap}}
 .work .nt{{font-size:12px;color:#666;margin-top:2px}}
 .sure{{border-bottom:1px dotted #888;cursor:help}}
 .ch-worse,.ch-new{{color:#c62828;font-weight:600}}.ch-better{{color:#2e7d32;font-weight:600}}

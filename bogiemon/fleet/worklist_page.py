@@ -46,6 +46,10 @@ def commissioned_key(loads: Sequence[str]) -> str:
     return "both" if {"full", "tare"} <= has else "full" if "full" in has else "tare" if "tare" in has else "none"
 
 
+def _nw(text: str) -> str:
+    return f'<span class="nw">{e(text)}</span>' if text else ""
+
+
 def _row(line: WorkLine) -> str:
     notes = "".join(f'<div class="nt">{e(n)}</div>' for n in line.notes)
     sure = line.sure
@@ -53,7 +57,7 @@ def _row(line: WorkLine) -> str:
         f'<span class="sure" title="{e(sure.explained)}">{e(sure.word)}{" · " + e(sure.figure) if sure.figure else ""}</span>' if sure.word else ""
     )
     changed = f'<span class="ch-{e(line.changed)}">{e(line.changed)}</span>' + (f" <span class=\"small\">{e(line.changed_text)}</span>" if line.changed_text else "")
-    data = e(utc(line.last_data_s)) + (' <span class="stale">stale</span>' if line.stale else "")
+    data = _nw(utc(line.last_data_s)) + (' <span class="stale">stale</span>' if line.stale else "")
     sensor = f"{line.sensor_faults} ({line.sensor_fault_windows} of {line.windows} windows)" if line.sensor_faults or line.sensor_fault_windows else ""
     alarms = ", ".join(p for p in (f"{line.alarms} confirmed" if line.alarms else "", f"{line.suspicions} suspected" if line.suspicions else "") if p)
     comm = commissioned_key(line.commissioned)
@@ -62,7 +66,7 @@ def _row(line: WorkLine) -> str:
         f'<td class="id"><a href="{e(line.page)}">{e(line.wagon)}</a></td>',
         f'<td class="st" data-v="{state_rank}">{badge(line.state.value)}</td>',
         f'<td class="act">{e(line.action)}{notes}</td>',
-        f'<td class="n" data-l="since" data-v="{line.since_s or 0:.0f}">{e(utc(line.since_s))}</td>',
+        f'<td class="n" data-l="since" data-v="{line.since_s or 0:.0f}">{_nw(utc(line.since_s))}</td>',
         f'<td data-l="how sure">{sure_html}</td>',
         f'<td data-l="changed" data-v="{("same", "better", "new", "worse").index(line.changed)}">{changed}</td>',
         f'<td class="n" data-l="last data" data-v="{line.last_data_s or 0:.0f}">{data}</td>',

@@ -297,3 +297,23 @@ def read_wagons_json(root: Path) -> dict[str, Any]:
 
 def write_wagons_json(root: Path, doc: dict[str, Any]) -> None:
     (root / "wagons.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
+
+
+def many_wagons(n: int) -> tuple[WagonSpec, ...]:
+    """A fleet of n synthetic wagons of three types: mostly normal, one in 97 confirmed, one in 20
+    suspected, blipping or with a sensor fault, one in 211 without data, one in 150 whose data
+    stopped five days early; commissioned for both loads, full only or not at all."""
+    kinds = ["normal"] * 17 + ["suspected", "blip", "sensor_fault"]
+    types = ("Sgns-Y25", "Sgns-Y25-light", "Habbiins")
+    commissioned: tuple[tuple[str, ...], ...] = (("full", "tare"), ("full",), ())
+    return tuple(
+        WagonSpec(
+            f"31-80-{4000 + i:04d}-{i % 10}", "confirmed" if i % 97 == 0 else "no_data" if i % 211 == 0 else kinds[i % len(kinds)],
+            type=types[i % 3], commissioned=commissioned[i % 7 % 3], days_behind=5 if i % 150 == 0 else 0,
+        )  # fmt: skip
+        for i in range(n)
+    )
+
+
+# A small shape for a large fleet: two days of one 10-minute recording each.
+SMALL_SHAPE = FleetShape(days=2, recordings_per_day=1, windows_per_recording=60)
