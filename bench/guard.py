@@ -32,12 +32,17 @@ REPO = Path(__file__).resolve().parents[1]
 RECORDS_PATH = REPO / "bench" / "results" / "records.json"
 FORMAT = 1
 TOLERANCE = 0.25  # a figure more than this above the last recorded one is a regression
-# The daemon's figures under guard (bench_daemon.py's keys): CPU per feed and the peak memory.
+# The figures under guard: the daemon's CPU per feed and peak memory (bench_daemon.py), the CPU of
+# `bogiemon analyze` of an hour as CSV and as Parquet (bench_core.py) and of `fleet analyze` per
+# wagon-hour on one worker (bench_fleet.py).
 GUARDED = (
     "daemon_can_cpu_s_per_h",
     "daemon_can_per_node_cpu_s_per_h",
     "daemon_replay_cpu_s_per_h",
     "daemon_replay_peak_rss_mb",
+    "analyze_1h_cpu_s",
+    "analyze_1h_parquet_cpu_s",
+    "fleet_cpu_s_per_wagon_h",
 )
 
 
