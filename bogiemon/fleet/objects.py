@@ -123,6 +123,9 @@ def _time_ns(info: dict[str, Any]) -> int:
 def list_objects(store: Store) -> list[ObjectInfo]:
     """Every object under the prefix, in key order; ObjectStoreError when it cannot be listed or holds nothing."""
     try:
+        # An fsspec filesystem is shared by every scan of the process and may answer from its listings
+        # cache (s3fs's find lists afresh; not every filesystem does): no cached listing hides an upload.
+        store.fs.invalidate_cache(store.root)
         found = store.fs.find(store.root, detail=True, withdirs=False)
     except FileNotFoundError:
         found = {}

@@ -173,3 +173,12 @@ def test_calibrate_on_a_store_says_to_calibrate_a_local_copy(trees: tuple[Path, 
     _, url = trees
     with pytest.raises(FleetError, match=rf"^{url}: calibrate writes the wagon's calibration.toml beside its config, in a local FLEET"):
         calibrate_wagon(url, tmp_path / "windows", "W1")
+
+
+def test_a_recording_uploaded_after_a_scan_is_found_by_the_next_scan_in_the_same_process(trees: tuple[Path, str]) -> None:
+    fs = _filesystem()
+    fs.put(str(trees[0]) + "/", f"{BUCKET}/later/", recursive=True)
+    url = f"s3://{BUCKET}/later"
+    before = scan_fleet(url).recordings
+    fs.copy(f"{BUCKET}/later/W1/{tiny.DAYS[0]}/060000_run.csv.gz", f"{BUCKET}/later/W1/{tiny.DAYS[0]}/070000_run.csv.gz")
+    assert scan_fleet(url).recordings == before + 1
