@@ -56,6 +56,16 @@ test: $(STAMP) lint system-deps
 	if [ $$status -eq 5 ]; then echo "make test: pytest collected no tests" >&2; exit 1; fi; \
 	exit $$status
 
+# The slow tier (tests/tier.py): the tests marked slow_tier at their full size (long property runs
+# whose fast example `make test` runs); `make test-all` is both.
+.PHONY: test-slow test-all
+test-slow: export PYTHONDONTWRITEBYTECODE =
+test-slow: export BOGIEMON_TEST_TIER = slow
+test-slow: $(STAMP)
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadgroup --no-loadscope-reorder -m slow_tier
+
+test-all: test test-slow
+
 # Benchmarks print figures (median, min and max of several runs; ratios against a baseline
 # measured in the same run); timing is never asserted in a test. `make bench` runs every part and
 # prints one table, writing bench/results/latest.json (about 50 minutes: the daemon runs at real
@@ -88,6 +98,24 @@ bench-daemon: $(STAMP)
 bench-study: $(STAMP)
 	$(PY) bench/bench_study.py
 
+# The import of the fleet's page (`import bogiemon.fleet.report`) in fresh interpreters, beside its
+# 0.3 s target; BENCH_ARGS=--why adds its heaviest modules (python -X importtime).
+.PHONY: bench-import
+bench-import: $(STAMP)
+	$(PY) bench/bench_import.py $(BENCH_ARGS)
+
+# The gateway (docs/gateway.md): the bundle's install on disk (build it first: make bundle), a
+# wagon's day of CPU with and without a duty cycle from stretches measured at real time (about 12
+# minutes), and what a duty cycle costs the detection of a broken spring (a 2 h simulated run, once).
+.PHONY: bench-gateway bench-vcan
+bench-gateway: $(STAMP)
+	$(PY) bench/bench_gateway.py $(BENCH_ARGS)
+
+# The CAN path on a real kernel (root; the VM of make test-vcan): `bogiemon run` on vcan0 beside
+# candump on the same frames, their CPU ratio and the daemon's peak RSS (about 7 minutes).
+bench-vcan: $(STAMP) vm-setup
+	$(PY) bench/bench_vcan.py $(BENCH_ARGS)
+
 # The back office: `fleet analyze` of a simulated fleet on 1 and 2 Dask workers, against `analyze`.
 .PHONY: bench-fleet
 bench-fleet: $(STAMP)
@@ -104,8 +132,10 @@ soak: $(STAMP)
 	$(PY) bench/soak.py
 
 # kill -9 at random moments of `bogiemon replay` and `bogiemon run` (bench/kill9.py): 120 trials,
-# seeded; per command the store-open failures, lost and duplicated events and state mismatches
-# (a few minutes; a handful of the same trials run in `make test`, tests/daemon/test_kill9.py).
+# seeded; per command the store-open failures, lost and duplicated events and state mismatches;
+# then 20 of `run` with its recorder on a small tmpfs (root only), the disk filled to its last page
+# with what it left, and a start that must give it back and commit (a few minutes; a handful of the
+# same trials run in `make test`, tests/daemon/test_kill9.py and test_kill9_disk.py).
 .PHONY: kill9
 kill9: $(STAMP)
 	$(PY) bench/kill9.py
@@ -133,11 +163,11 @@ bench-mqtt: $(STAMP) system-deps
 	$(PY) bench/bench_mqtt.py
 
 # The fuzz suite (bench/fuzz.py; not part of `make test`, whose tests/test_fuzz_quick.py runs its
-# --quick form): every decoder and parser fed seeded generated and mutated inputs (150 to 100 000 per
-# target: compressed and Parquet recordings, the recorder on a full tmpfs, reload storms too), each
-# under a time limit; prints per target the inputs, clear errors, crashes, hangs and silently wrong
+# --quick form): every decoder and parser fed seeded generated and mutated inputs (120 to 100 000 per
+# target: compressed and Parquet recordings, the recorder on a full tmpfs, reload storms, floods of
+# signals at a running daemon too), each under a limit of CPU time; prints per target the inputs, clear errors, crashes, hangs and silently wrong
 # results, saves each distinct finding under bench/fuzz_crashes/ and exits 1 on a crash or a hang
-# (about 30 minutes on two cores; the recorder's target mounts its tmpfs as root, else is not run).
+# (about 35 minutes on two cores; the recorder's target mounts its tmpfs as root, else is not run).
 fuzz: $(STAMP)
 	$(PY) bench/fuzz.py
 
@@ -181,6 +211,58 @@ demo-calibration: $(STAMP)
 			--seed $$((100 + i)) -o $(DEMO_RUNS)/healthy-$$i.csv || exit 1; \
 	done
 	$(VENV)/bin/bogiemon calibrate $(DEMO_RUNS)/healthy-*.csv --load full -o config/demo_calibration.toml
+
+# The gateway's offline bundle (docs/gateway.md, bundle/build.py): bogiemon's wheel and every
+# wheel of bundle/lock/<ARCH>-cp3XX.txt for CPython 3.11-3.13, the units, the default config and
+# install.sh, as build/bundle/bogiemon-<version>-<ARCH>.tar.gz (about 60 MB; a minute, the wheels
+# from PyPI through pip's cache). `make lock` resolves the lock files again from pyproject.toml's
+# dependencies (a few minutes); the bundle refuses a lock that no longer matches them. Both run in
+# a small venv of their own (build/tools: pip only), not the development venv.
+ARCH ?= $(shell uname -m)
+TOOLS := build/tools/bin/python
+$(TOOLS):
+	$(PYTHON) -m venv build/tools
+
+.PHONY: bundle lock
+bundle: $(TOOLS)
+	$(TOOLS) bundle/build.py --arch $(ARCH)
+
+lock: $(TOOLS)
+	$(TOOLS) bundle/lock.py
+
+# The bundle tested for real (not part of `make test`): built for ARCH, installed in a Debian root
+# of that architecture made by debootstrap from Debian's packages (arm64 under qemu-user-static;
+# cached in build/debian-<suite>-<arch>, DEBIAN_SUITE=bookworm by default), with no network, where
+# check-config, a replay of a simulated broken spring and `bogiemon run` on it must confirm the
+# fault and store it; then an upgrade and a rollback (tests/bundle/). Root only. test-arm is
+# ARCH=aarch64: the first run about 15 minutes (the root), later ones about 6 (docs/gateway.md).
+FAULT_RUN := build/bundle/broken-spring.csv
+$(FAULT_RUN): | $(STAMP)
+	mkdir -p build/bundle
+	$(VENV)/bin/bogiemon simulate --load full --track erri-low --speed-kmh 80 --duration-s 240 \
+		--fault type_a:rear_outer:0.0@leading-left --fault-at-s 60 --seed 2 -q -o $@
+
+.PHONY: test-arm test-bundle
+test-arm:
+	$(MAKE) test-bundle ARCH=aarch64
+
+test-bundle: $(FAULT_RUN) bundle
+	bash tests/bundle/in_debian_root.sh $(ARCH) build/bundle/bogiemon-$$($(TOOLS) -c 'import sys; sys.path.insert(0, "bundle"); import build; print(build.version())')-$(ARCH).tar.gz $(FAULT_RUN)
+
+# The CAN path on a real kernel (not part of `make test`): this machine's kernel has no SocketCAN,
+# so Debian's own kernel boots in QEMU (software emulation, about 12x slower than the host) with
+# vcan0 up and this checkout, its venv included, shared read-only (tests/vm/: setup.sh once, as
+# root, about 90 MB of packages; then run.sh). The `vcan`-marked tests run there: `bogiemon play`
+# and can-utils into the CAN source, and the recvmmsg reader against python-can on an AF_CAN socket
+# (about 3 minutes; the count is printed).
+VM_OUT := build/vm-out
+.PHONY: test-vcan vm-setup
+vm-setup:
+	bash tests/vm/setup.sh
+
+test-vcan: $(STAMP) vm-setup
+	mkdir -p $(VM_OUT)
+	VM_OUT=$(abspath $(VM_OUT)) bash tests/vm/run.sh "cd $(CURDIR) && PYTHONDONTWRITEBYTECODE=1 $(PY) -m pytest -p no:cacheprovider -m vcan -rA -q tests/drivers/test_vcan.py"
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis .mypy_cache .ruff_cache build *.egg-info

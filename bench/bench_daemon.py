@@ -57,6 +57,9 @@ FS_HZ = 500.0
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 TARGET_CPU_S_PER_H = 72.0  # 2 % of one core
 AIM_CPU_S_PER_H = 36.0  # 1 %
+# The whole daemon on the hub's CAN at 500 Hz (issue 35; 28.7 CPU s/h before it): a wagon's day of
+# 6 h running within 100 CPU s with the standing hours (bench_gateway.py).
+TARGET_CAN_HUB_CPU_S_PER_H = 11.0
 TARGET_RSS_MB = 150.0
 COMMAND = "make bench-daemon"
 FEEDS = ("can", "per-node", "recording")  # "all": each in turn
@@ -206,7 +209,7 @@ def run_can_in_process(seconds: float, seed: int, coalesce_s: float | None = Non
         )  # fmt: skip
         def stop() -> None:
             steady.close()
-            service.flags.stop.set()
+            service.request_stop()
 
         timer = threading.Timer(START_UP_S + seconds, stop)
         timer.name = "bench-stop-timer"
@@ -282,8 +285,8 @@ def can_figures(runs: int, seconds: float, layout_name: str = "hub") -> list[Fig
     roles = [role for role in ROLE_WHAT if any(role in (r.thread_cpu_s_per_hour or {}) for r in can_runs)]
     return [
         Figure.of("daemon_can_cpu_s_per_h", "daemon, CAN at 500 Hz (virtual bus, player thread subtracted)", "CPU s/h",
-                  [r.cpu_s_per_hour for r in can_runs], COMMAND, higher_is_better=False, target=TARGET_CPU_S_PER_H,
-                  note=f"aim {AIM_CPU_S_PER_H:g}"),
+                  [r.cpu_s_per_hour for r in can_runs], COMMAND, higher_is_better=False, target=TARGET_CAN_HUB_CPU_S_PER_H,
+                  note="28.7 before issue 35"),
         *[Figure.of(f"daemon_can_thread_{role}_cpu_s_per_h", f"  of which the {ROLE_WHAT[role]}", "CPU s/h",
                     [(r.thread_cpu_s_per_hour or {}).get(role, 0.0) for r in can_runs], COMMAND, higher_is_better=False)
           for role in roles],

@@ -26,18 +26,17 @@ from bogiemon.daemon.config import MqttConfig  # noqa: E402
 from bogiemon.daemon.delivery.connection import ConnectionSettings  # noqa: E402
 from bogiemon.daemon.delivery.listener import Listener  # noqa: E402
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings  # noqa: E402
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind  # noqa: E402
+from bogiemon.judgement.events import Event, EventKind  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.store import EventStore  # noqa: E402
 from tests.daemon.delivery.mqtt_broker import Broker, ensure_mosquitto  # noqa: E402
+from tests.judgement.event_examples import event_of  # noqa: E402
 
 WAGON = "bench-wagon"
 
 
 def events(n: int) -> list[Event]:
-    kind = EventKind.SUSPECTED
-    return [Event(time_s=1.7e9 + i, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="bench", indicators={"i4_norm": 0.2},
-                  details={"load": "full", "window_end_s": 1.7e9 + i}) for i in range(n)]  # fmt: skip
+    return [event_of(EventKind.SUSPECTED, 1.7e9 + i, {"i4_norm": 0.2}, config_hash="bench") for i in range(n)]
 
 
 def drain(workdir: Path, n: int, rate_per_s: float, max_inflight: int) -> tuple[float, float]:

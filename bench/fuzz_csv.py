@@ -23,6 +23,7 @@ import numpy as np
 import fuzz_core
 from bogiemon.daemon.analysis import analyze_recording
 from bogiemon.daemon.config import BogiemonConfig, load_config
+from bogiemon.drivers.columns import ColumnMap, TimeUnit
 from bogiemon.drivers.recording import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, RecordingError, read_csv_recording
 
 HEADER = "time_s,a1,a2,a3"
@@ -75,18 +76,32 @@ def reference(raw: bytes) -> tuple[list[float], list[list[float]]] | str:
     except UnicodeDecodeError:
         return "not UTF-8"
     rows = list(csv.reader(io.StringIO(text, newline="")))
-    if not rows or ",".join(rows[0]).strip() != HEADER:
+    if not rows:
         return "no header"
+    # The header names the columns: bogiemon's own, or those the default mapping finds by name
+    # (drivers/columns.py: the time as time_s, time, timestamp, ...; a1, a2, a3).
+    names = [cell.strip().strip('"').strip() for cell in rows[0]]
+    if ",".join(rows[0]).strip() == HEADER:
+        picks = [0, 1, 2, 3]
+    else:
+        if any(d in ",".join(rows[0]) for d in ";\t|"):
+            return "a header the sniffer may split otherwise"
+        try:
+            picks = [names.index(name) for name in ColumnMap().select(names)]
+        except ValueError:
+            return "no header"
+        if ColumnMap().resolved_time_unit(names[picks[0]], None) is not TimeUnit.S:
+            return "a time column not in seconds"
     times, accel = [], []
     for row in rows[1:]:
         if not row or all(not cell.strip() for cell in row):
             continue
-        if len(row) != 4:
+        if len(row) != len(names):
             return f"a row of {len(row)} cells"
         try:
             # Padding is whatever str.strip() removes (Unicode white space, as numpy's reader counts
             # it: \x1c-\x1f too), float() alone only ASCII white space; the number is the same.
-            values = [float(cell.strip()) for cell in row]
+            values = [float(row[i].strip()) for i in picks]
         except ValueError:
             return f"not numbers: {row}"
         # NaN is no reading and a time must be finite; an acceleration beyond the converter's
@@ -112,7 +127,11 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     if isinstance(ref, str):
         return f"accepted a file the csv module cannot read ({ref}): {recording.n_samples} samples at {recording.fs_hz!r} Hz"
     times, accel = ref
-    if not np.array_equal(recording.time_s, np.array(times)) or not np.array_equal(recording.accel_mps2, np.array(accel).reshape(-1, 3)):
+    if recording.resampled_samples:  # jittered times on the grid: interpolated, never beyond the rows' range
+        low, high = np.min(accel, axis=0), np.max(accel, axis=0)
+        if not np.all((recording.accel_mps2 >= low) & (recording.accel_mps2 <= high)):
+            return f"resampled values beyond the range of the csv module's: {recording.n_samples} samples read, {len(times)} rows"
+    elif not np.array_equal(recording.time_s, np.array(times)) or not np.array_equal(recording.accel_mps2, np.array(accel).reshape(-1, 3)):
         return f"values differ from the csv module's: {recording.n_samples} samples read, {len(times)} rows"
     if not (math.isfinite(recording.fs_hz) and recording.fs_hz > 0):
         return f"absurd sample rate: {recording.fs_hz!r} Hz from {recording.n_samples} samples"

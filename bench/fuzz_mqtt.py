@@ -35,7 +35,10 @@ from bogiemon.daemon.store import EventStore
 
 PREFIX = "bogiemon"
 WAGON = "318045331234"
-KINDS = {"SUSPECTED": "warning", "CONFIRMED": "alarm", "CLEARED": "info", "SENSOR_FAULT": "warning", "SENSOR_CLEARED": "info"}
+KINDS = {
+    "SUSPECTED": "warning", "CONFIRMED": "alarm", "CLEARED": "info", "SENSOR_FAULT": "warning", "SENSOR_CLEARED": "info", "NOT_JUDGED": "warning",
+    "JUDGED_AGAIN": "info",
+}  # fmt: skip
 INDICATORS = ("i1", "i2", "i3", "i4", "i1_norm", "i2_norm", "i3_norm", "i4_norm")
 PROBLEMS = ("flat", "stuck", "clipping", "noisy", "over_range", "sensor_fault_bit", "dropouts")
 # At most this many status messages may stay in memory after a flood (the listener keeps a few
@@ -46,15 +49,33 @@ STATUS_BOUND = 1000
 def event_body(rng: random.Random, wagon: str) -> dict[str, Any]:
     kind = rng.choice(list(KINDS))
     time_s = rng.choice((1.7e9, 1.8e9, 0.0, 12.0)) + rng.uniform(0, 1e6)
-    details: dict[str, Any] = {"load": rng.choice(("full", "tare")), "window_start_s": time_s - 120, "window_end_s": time_s}
-    if kind.startswith("SENSOR"):
-        details["problems"] = {rng.choice(("a1", "a2", "a3", "source")): rng.sample(PROBLEMS, rng.randint(1, 3))}
-    if kind == "CONFIRMED":
-        details["alarm_windows"] = "3 of 5"
+    details = details_body(rng, kind, time_s)
     indicators = {name: rng.uniform(-1, 1) for name in rng.sample(INDICATORS, rng.randint(0, 3))}
-    return {"schema": "bogiemon.event/1", "wagon_id": wagon, "seq": rng.randint(1, 10**6), "event_id": rng.randbytes(16).hex(),
+    # Both schemas a back office reads: /1 wrote the counts of windows as "k of n".
+    return {"schema": rng.choice(("bogiemon.event/1", "bogiemon.event/2")), "wagon_id": wagon, "seq": rng.randint(1, 10**6), "event_id": rng.randbytes(16).hex(),
             "time_s": time_s, "kind": kind, "severity": KINDS[kind], "config_hash": rng.randbytes(6).hex(),
             "indicators": indicators, "details": details}  # fmt: skip
+
+
+def details_body(rng: random.Random, kind: str, time_s: float) -> dict[str, Any]:
+    """An event's details as the daemon writes them for its kind (daemon/event_json.py), either schema's counts."""
+    window = {"window_start_s": time_s - 120, "window_end_s": time_s}
+    problems = {rng.choice(("a1", "a2", "a3", "source")): rng.sample(PROBLEMS, rng.randint(1, 3))}
+    rms = [rng.uniform(0, 3) for _ in range(3)]
+    if kind == "SENSOR_FAULT":
+        return {**window, "rms_mps2": rms, "problems": problems, "reported": problems}
+    if kind == "SENSOR_CLEARED":
+        return {**window, "rms_mps2": rms, "cleared": problems}
+    if kind == "NOT_JUDGED":
+        return {**window, "message": "not judged for the last 2.0 h of running", "unjudged_running_s": 7200.0, "last_judged_s": rng.choice((None, time_s - 7300))}
+    if kind == "JUDGED_AGAIN":
+        return window
+    details: dict[str, Any] = {"load": rng.choice(("full", "tare")), **window, "thresholds": {"i4_norm": {"center": 0.0, "warning": 0.1, "alarm": 0.2}}}
+    if kind == "CONFIRMED":
+        details |= {"trigger": rng.choice(("windows", "trend")), "alarm_windows": rng.choice(("3 of 5", {"k": 3, "n": 5}))}
+    elif kind == "CLEARED":
+        details["cleared"] = rng.choice(("suspected", "confirmed"))
+    return details
 
 
 def status_body(rng: random.Random, wagon: str) -> dict[str, Any]:
@@ -73,8 +94,8 @@ def status_body(rng: random.Random, wagon: str) -> dict[str, Any]:
 
 
 # Payloads too big to keep in a saved input: ["big", name] stands for them (built once per worker).
-_EXAMPLE = {"schema": "bogiemon.event/1", "wagon_id": WAGON, "seq": 1, "event_id": "e1", "time_s": 1.7e9, "kind": "SUSPECTED",
-            "severity": "warning", "config_hash": "c0ffee", "indicators": {"i4_norm": 0.2}, "details": {}}  # fmt: skip
+_EXAMPLE = {"schema": "bogiemon.event/2", "wagon_id": WAGON, "seq": 1, "event_id": "e1", "time_s": 1.7e9, "kind": "JUDGED_AGAIN",
+            "severity": "info", "config_hash": "c0ffee", "indicators": {"i4_norm": 0.2}, "details": {"window_start_s": 1.7e9 - 120, "window_end_s": 1.7e9}}  # fmt: skip
 BIG = {
     "deep_list": lambda: b"[" * 100_000 + b"]" * 100_000,
     "deep_object": lambda: b'{"a":' * 50_000 + b"1" + b"}" * 50_000,

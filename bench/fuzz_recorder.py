@@ -46,8 +46,9 @@ import fuzz_core
 from bogiemon.daemon.config import BogiemonConfig, parse_config
 from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.monitor import MemoryEventLog, Monitor
-from bogiemon.daemon.recorder import Recorder, RecorderSettings, keep_the_reserve_free
+from bogiemon.daemon.recorder import Recorder, RecorderSettings
 from bogiemon.daemon.recorder_space import NAME_PATTERN
+from bogiemon.daemon.statedir import give_back
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.atomic import final_name_of
 from bogiemon.drivers.base import Block
@@ -274,7 +275,7 @@ def _run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
 
     blocks = as_blocks(signal_of(data), start_s=START_S, block_n=data["block_n"])
     # As `bogiemon run` starts: the reserve given back, then the store, the monitor, the recorder.
-    keep_the_reserve_free(settings)
+    give_back(config)
     verdict = _gave_back(disk, recordings, reserve, "before the store opens")
     if verdict is not None:
         return verdict

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 import fuzz_core
@@ -59,6 +60,7 @@ from fuzz_parquet_bytes import encode_struct, int_fields, join_parquet, move_off
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig, parse_config
 from bogiemon.drivers.base import EndOfStream
+from bogiemon.drivers.columns import ColumnMap
 from bogiemon.drivers.files import MIN_INFLATED_BYTES
 from bogiemon.drivers.recording import (
     COLUMNS,
@@ -589,13 +591,28 @@ def reference_gz(raw: bytes, name: str) -> Samples | str:
 
 
 def reference_parquet(path: Path) -> Samples | str:
-    """What pyarrow's whole-file reader reads, or why it cannot (nulls are no readings: refused)."""
+    """What pyarrow's whole-file reader reads, or why it cannot (nulls are no readings: refused):
+    the columns of the default mapping by name (drivers/columns.py), numbers as float64."""
     try:
         table = pq.read_table(path, use_threads=False)
     except (pa.ArrowException, OSError, ValueError, MemoryError) as exc:
         return f"pyarrow cannot read it ({str(exc)[:100]})"
-    if table.schema.names != list(COLUMNS) or any(t != pa.float64() for t in table.schema.types):
-        return f"the schema is {table.schema.names}"
+    names = table.schema.names
+    try:
+        selected = ColumnMap().select(names)
+    except ValueError:
+        return f"the schema is {names}"
+    if any(names.count(name) != 1 for name in selected):
+        return f"the schema is {names}"
+    table = table.select(selected)
+    if not all(pa.types.is_floating(t) or pa.types.is_integer(t) for t in table.schema.types):
+        return f"the schema is {table.schema}"
+    table = pa.table([c.cast(pa.float64(), safe=False) for c in table.columns], names=list(COLUMNS))
+    if table.num_rows:  # a time column's unit by its name, else its first value's magnitude
+        first = table.column(0)[0].as_py()
+        to_s = ColumnMap().resolved_time_unit(selected[0], first).to_s
+        if to_s != 1.0:
+            table = table.set_column(0, "time_s", pc.multiply(table.column(0), to_s))
     if any(column.null_count for column in table.columns):
         return "a value is null"
     time_s = table.column(0).to_numpy()
@@ -613,18 +630,27 @@ def analyze_config() -> BogiemonConfig:
     return parse_config(ANALYZE_CONFIG, "fuzz")
 
 
-def _first_bad_step(blocks: list[tuple[float, int]], fs_hz: float) -> str | None:
-    """Blocks (start_s, n) that do not follow one another at the rate they claim: n / fs_hz apart."""
-    for (start_s, n), (next_s, _) in zip(blocks, blocks[1:], strict=False):
+def _first_bad_step(blocks: list[tuple[float, int, bool]], fs_hz: float) -> str | None:
+    """Blocks (start_s, n, gap_before) that do not follow one another at the rate they claim: n / fs_hz
+    apart, but where the next one says a gap comes before it (then later than that)."""
+    for (start_s, n, _), (next_s, _, gap) in zip(blocks, blocks[1:], strict=False):
         claimed_s = n / fs_hz
+        if gap:
+            if not next_s - start_s > claimed_s:
+                return f"a block after a gap starts at {next_s!r}, within the block before it ({start_s!r} + {claimed_s:.6g} s)"
+            continue
         if not abs((next_s - start_s) - claimed_s) <= STEP_SLACK * claimed_s:
             return f"a block of {n} samples at {fs_hz:.6g} Hz starts at {start_s!r}, the next {next_s - start_s:.6g} s later, not {claimed_s:.6g} s"
     return None
 
 
-def _replay(path: Path, max_block_s: float, ref: Samples | None) -> tuple[list[tuple[float, int]], float, str | None, RecordingError | None]:
-    """Replay the file as `bogiemon replay` reads it, each block checked against the reference as it comes."""
-    blocks: list[tuple[float, int]] = []
+def _replay(path: Path, max_block_s: float, ref: Samples | None) -> tuple[list[tuple[float, int, bool]], float, str | None, RecordingError | None, bool]:
+    """Replay the file as `bogiemon replay` reads it, each block checked against the reference as it
+    comes: its samples exactly, or, once jittered times were resampled onto the grid, within the
+    range of the reference's (an interpolation never leaves it; tests/drivers compares the values
+    with a whole-file interpolation). The last value: whether the file was on one grid without a
+    gap (its samples exactly the reference's rows)."""
+    blocks: list[tuple[float, int, bool]] = []
     wrong: str | None = None
     source = RecordingReplaySource(path, rate=0.0, max_block_s=max_block_s)
     delivered = 0
@@ -633,13 +659,17 @@ def _replay(path: Path, max_block_s: float, ref: Samples | None) -> tuple[list[t
             try:
                 block = source.read(1.0)
             except EndOfStream:
-                return blocks, source.fs_hz, wrong, None
+                return blocks, source.fs_hz, wrong, None, _regular(source)
             except RecordingError as exc:
-                return blocks, source.fs_hz, wrong, exc
+                return blocks, source.fs_hz, wrong, exc, _regular(source)
             if block is None:
                 continue
-            blocks.append((block.start_s, block.n_samples))
-            if wrong is None and ref is not None:
+            blocks.append((block.start_s, block.n_samples, block.gap_before))
+            if wrong is None and ref is not None and source.counters.extra["resampled_samples"]:
+                low, high = ref[1].min(axis=0), ref[1].max(axis=0)
+                if not np.all((block.accel_mps2 >= low) & (block.accel_mps2 <= high)):
+                    wrong = f"resampled samples {delivered}.. beyond the range of the reference's"
+            elif wrong is None and ref is not None:
                 time_s, accel = ref
                 stop = delivered + block.n_samples
                 if stop > time_s.shape[0]:
@@ -653,6 +683,10 @@ def _replay(path: Path, max_block_s: float, ref: Samples | None) -> tuple[list[t
         source.close()
 
 
+def _regular(source: RecordingReplaySource) -> bool:
+    return not (source.counters.extra["resampled_samples"] or source.counters.extra["recording_gaps"])
+
+
 def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     path = ctx.fresh_dir() / data["name"]
     path.write_bytes(data["file"])
@@ -662,9 +696,9 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     target = "recording-parquet" if parquet else "recording-gz"
     with PeakRss() as peak:
         try:
-            blocks, fs_hz, wrong, error = _replay(path, data["max_block_s"], samples)
+            blocks, fs_hz, wrong, error, regular = _replay(path, data["max_block_s"], samples)
         except RecordingError as exc:  # refused at the open: nothing was delivered
-            blocks, fs_hz, wrong, error = [], math.nan, None, exc
+            blocks, fs_hz, wrong, error, regular = [], math.nan, None, exc, True
         windows: list[tuple[float, float]] = []
         analysed: RecordingError | None = None
         if data["analyze"] and error is None:
@@ -690,11 +724,15 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     if samples is None:
         return f"accepted a file the reference cannot read ({ref}): {n} samples at {fs_hz!r} Hz"
     time_s, _ = samples
-    if n != time_s.shape[0]:
+    if regular and n != time_s.shape[0]:
         return f"delivered {n} samples of the reference's {time_s.shape[0]}"
-    whole_hz = (n - 1) / (time_s[-1] - time_s[0])
-    if not abs(fs_hz - whole_hz) <= 1e-9 * whole_hz:
-        return f"a rate of {fs_hz!r} Hz, the file's is {whole_hz!r} Hz"
+    # The rate is the file's steps' (drivers/recording_check.py: snapped to the whole hertz within
+    # 0.05 %): the median step of a file on one grid, with or without jitter and gaps.
+    median_step_s = float(np.median(np.diff(time_s)))
+    if not abs(fs_hz * median_step_s - 1.0) <= STEP_SLACK:
+        return f"a rate of {fs_hz!r} Hz, the file's median step is {median_step_s!r} s"
+    if not regular:
+        return None  # the windows of a file with gaps or resampled: tests/daemon checks them
     if analysed is not None:
         raise analysed
     if data["analyze"]:

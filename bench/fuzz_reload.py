@@ -8,7 +8,7 @@ config the service must reject (bad TOML, a bad value, an include that is no lis
 a folder, a FIFO, a file past the config's size cap). Some reloads are storms of up to 12 SIGHUPs,
 each sent once the service's handler took the one before. The feed holds the next block until the
 monitor has taken every block before it and the service has done every reload the SIGHUPs asked
-for (its reload flag counts them), so that each reload lands between two known blocks.
+for (its requests count them), so that each reload lands between two known blocks.
 
 Wrong results: an exit status other than 0; events or windows other than those of a Monitor fed the
 same blocks and reconfigured at the same blocks (MemoryEventLog: the reference); a reload rejected
@@ -40,6 +40,7 @@ from bogiemon.daemon.monitor import MemoryEventLog, Monitor, MonitorSettings, wi
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.service import Service
+from bogiemon.daemon.signals import Requests
 from bogiemon.daemon.sinks import MemorySink
 from bogiemon.drivers.base import Block, EndOfStream
 from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config
@@ -205,29 +206,37 @@ class ReloadFeed:
         return False
 
 
-class ReloadFlag(threading.Event):
-    """The service's reload flag, counting the reloads taken: each is counted before the flag is
-    cleared, so that a clear flag with every taken reload done means no reload is on or to come."""
+class CountedRequests(Requests):
+    """The service's requests, counting the reloads taken: each is counted as it is taken, so that
+    no reload asked for with every taken reload done means no reload is on or to come."""
 
     def __init__(self) -> None:
         super().__init__()
         self.taken = 0
 
-    def clear(self) -> None:
-        self.taken += 1
-        super().clear()
+    def take_reload(self) -> bool:
+        taken = super().take_reload()
+        self.taken += taken
+        return taken
 
 
 class TappedService(Service):
     """The service, with the feed's tap on its monitor (how many blocks the monitor has taken), and
     counts of the SIGHUPs its handler took and the reloads it did."""
 
+    requests: CountedRequests
+
     def __init__(self, *args: Any, tap: Callable[[Block], None], **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.flags = replace(self.flags, reload=ReloadFlag())
+        super().__init__(*args, **{**kwargs, "requests": CountedRequests()})
         self._tap = tap
         self.hups = self.hups_before = 0
         self.reloads_done = 0
+
+    def run(self) -> int:
+        try:
+            return super().run()
+        finally:
+            self.requests.close()  # the service leaves requests it was given open
 
     def install_signal_handlers(self) -> None:
         super().install_signal_handlers()
@@ -241,9 +250,7 @@ class TappedService(Service):
         signal.signal(signal.SIGHUP, counted)
 
     def idle(self) -> bool:
-        flag = self.flags.reload
-        assert isinstance(flag, ReloadFlag)
-        return not flag.is_set() and flag.taken == self.reloads_done
+        return not self.requests.reload and self.requests.taken == self.reloads_done
 
     def _reload(self, pipeline: Pipeline, monitor: Monitor) -> Pipeline:
         try:

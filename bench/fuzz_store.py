@@ -22,9 +22,10 @@ from typing import Any
 
 import fuzz_core
 from bogiemon.cli.events import format_event
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.store import DB_NAME, EventStore
 from bogiemon.daemon.store_file import SCHEMA_VERSION
+from tests.judgement.event_examples import event_of
 
 PAGE_BYTES = 4096
 BASES = 6  # distinct healthy stores the damage starts from
@@ -35,9 +36,10 @@ def _events(rng: random.Random, n: int) -> list[Event]:
     out = []
     for i in range(n):
         kind = rng.choice(kinds)
-        out.append(Event(time_s=1.7e9 + 10 * i, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="c0ffee",
-                         indicators={"i4_norm": rng.uniform(-1, 1)}, details={"load": "full", "pad": "x" * rng.choice((0, 100, 3000))},
-                         event_id=rng.randbytes(16).hex()))  # fmt: skip
+        indicators = {"i4_norm": rng.uniform(-1, 1)}
+        pad = "x" * rng.choice((0, 100, 3000))  # rows that fill pages and overflow them, where the kind holds free text
+        text = pad if kind in (EventKind.NOT_JUDGED, EventKind.CONFIRMED) else ""
+        out.append(event_of(kind, 1.7e9 + 10 * i, indicators, text=text, event_id=rng.randbytes(16).hex()))
     return out
 
 
@@ -154,7 +156,7 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
         store.outbox.pending_events()
         store.outbox.pending_status()
         store.outbox.counts()
-        store.append([Event(time_s=1.8e9, kind=EventKind.SUSPECTED, severity=DEFAULT_SEVERITY[EventKind.SUSPECTED], config_hash="fuzz")],
+        store.append([event_of(EventKind.SUSPECTED, 1.8e9, config_hash="fuzz")],
                      state={"monitor": {"decision": {"mode": "suspected"}}})  # fmt: skip
         after = store.events()
     finally:

@@ -70,7 +70,7 @@ from soak_schedule import FS_HZ, HOUR_S, Schedule, day_schedule, short_schedule 
 
 from bogiemon.daemon.config import BogiemonConfig, load_config  # noqa: E402
 from bogiemon.drivers.atomic import write_text_atomically  # noqa: E402
-from bogiemon.judgement.events import EventKind  # noqa: E402
+from bogiemon.judgement.events import ClearedDetails  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
 from bogiemon.daemon.service import Service  # noqa: E402
 from bogiemon.daemon.store import EventStore  # noqa: E402
@@ -158,7 +158,7 @@ def summary(run: SoakRun, checks: Checks, slope: float, peak_mb: float, totals: 
     fed_h = run.feed.fed_samples / FS_HZ / HOUR_S
     rss = run.feed.rss_samples
     warm = [mb for h, mb, _ in rss if h >= WARMUP_H]
-    cleared = Counter(str(e.details.get("cleared")) for e in run.events if e.kind is EventKind.CLEARED)
+    cleared = Counter(str(e.details.cleared) for e in run.events if isinstance(e.details, ClearedDetails))
     return {
         "simulated_hours": run.schedule.duration_s / HOUR_S,
         "fed_hours": fed_h,

@@ -19,7 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from soak_feed import Feed, Lifetime  # noqa: E402
 from soak_schedule import FS_HZ, HOUR_S, T0_S, Phase, Schedule  # noqa: E402
 
-from bogiemon.judgement.events import Event, EventKind  # noqa: E402
+from bogiemon.judgement.events import ClearedDetails, Event, EventKind, SensorFaultDetails  # noqa: E402
+from bogiemon.judgement.vocabulary import Mode  # noqa: E402
 
 WARMUP_H = 2.0
 RSS_SLOPE_BOUND_MB_PER_H = 1.0
@@ -55,10 +56,15 @@ def data_s(event: Event) -> float:
     return event.time_s - T0_S
 
 
+def problems(e: Event) -> dict[str, list[str]]:
+    """The problems a SENSOR_FAULT found (none for another event)."""
+    return {ch: list(names) for ch, names in e.details.problems.items()} if isinstance(e.details, SensorFaultDetails) else {}
+
+
 def check_events(run: SoakRun, window_s: float, hop_s: float, clear_after: int, sensor_clear_after: int, checks: Checks) -> None:
     events = run.events
     confirmed = [e for e in events if e.kind is EventKind.CONFIRMED]
-    cleared_alarms = [e for e in events if e.kind is EventKind.CLEARED and e.details.get("cleared") == "confirmed"]
+    cleared_alarms = [e for e in events if isinstance(e.details, ClearedDetails) and e.details.cleared is Mode.CONFIRMED]
     faults = [p for p in run.schedule.phases if p.kind == "fault"]
     # A CONFIRMED needs confirm_k windows at alarm; a CLEARED clear_after windows below warning,
     # the first window wholly after the fault ending window_s after it, and with the fused
@@ -91,13 +97,13 @@ def check_events(run: SoakRun, window_s: float, hop_s: float, clear_after: int, 
 
     for p in sensor_phases:
         mine = [e for e in sensor_faults if owner(e) is p]
-        sets = [json.dumps(e.details.get("problems"), sort_keys=True) for e in mine]
+        sets = [json.dumps(problems(e), sort_keys=True) for e in mine]
         # The daemon raises a SENSOR_FAULT only when a problem not yet reported appears: every
         # event of the phase must name a (channel, problem) pair that no earlier one did.
         seen: set[tuple[str, str]] = set()
         stale = 0
         for e in mine:
-            pairs = {(ch, what) for ch, whats in (e.details.get("problems") or {}).items() for what in whats}
+            pairs = {(ch, what) for ch, whats in problems(e).items() for what in whats}
             stale += not (pairs - seen)
             seen |= pairs
         checks.expect(bool(mine) and stale == 0 and all(data_s(e) <= p.end_s + window_s for e in mine),

@@ -3,7 +3,7 @@
 Runs the detection core against its naive baseline and `analyze` (bench_core), the CAN decoder
 and the sources (bench_drivers), the simulator (bench_simulator), the whole daemon at 500 Hz
 (bench_daemon) and the full detection study once (bench_study), the back office's `fleet analyze` on 1 and 2
-Dask workers (bench_fleet), then prints one Markdown table
+Dask workers (bench_fleet) and the import of the fleet's page (bench_import), then prints one Markdown table
 and writes JSON with the figures, the machine's CPU model, the load average before and after,
 the versions of Python and the libraries, the date and the git commit.
 The daemon's figures are guarded (bench/guard.py): each must stay within 25 % of the last figure
@@ -37,6 +37,7 @@ import bench_core  # noqa: E402
 import bench_daemon  # noqa: E402
 import bench_drivers  # noqa: E402
 import bench_fleet  # noqa: E402
+import bench_import  # noqa: E402
 import bench_simulator  # noqa: E402
 import bench_study  # noqa: E402
 import guard  # noqa: E402
@@ -56,6 +57,7 @@ PARTS: dict[str, tuple[Callable[..., list[Figure]], dict[str, Any], dict[str, An
     "study": (bench_study.figures, {"runs": 1}, {"runs": 1, "quick": True}),
     "fleet": (bench_fleet.figures, {"runs": 5, "wagons": 16, "days": 2, "recordings": 2},
               {"runs": 1, "wagons": 4, "days": 1, "recordings": 2}),
+    "import": (bench_import.figures, {"runs": 9}, {"runs": 3}),
 }  # fmt: skip
 
 

@@ -15,7 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
-from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.events import ConfirmedDetails, EventKind
 
 if TYPE_CHECKING:
     from bogiemon.judgement.verdict import WindowVerdict
@@ -66,12 +66,12 @@ class LiveDisplay:
         for event in report.events:
             fired = ", ".join(f"{k} {v:+.3f}" for k, v in event.indicators.items())
             line = f"{event.kind.value} ({event.severity.value}) at {end_s:.0f} s: {fired}"
-            diagnosis = event.details.get("diagnosis")
-            if diagnosis and diagnosis["corner"] != "unknown":
-                line += f"; corner {diagnosis['corner']} ({diagnosis['best_match']})"
-            elif diagnosis:
-                # The signs do not single a corner out: say so, with what they lean to.
-                line += f"; corner unknown ({diagnosis['best_match'] or 'no evidence'})"
+            diagnosis = event.details.diagnosis if isinstance(event.details, ConfirmedDetails) else None
+            if diagnosis is not None and diagnosis.corners:
+                line += f"; corner {diagnosis.corner} ({diagnosis.best_match})"
+            elif diagnosis is not None:
+                # The signs do not single a pair out: say so, and why (best_match names no pair then).
+                line += f"; corner unknown ({diagnosis.best_match or 'no evidence'})"
             self.events.append(line)
             self.out.write(f"  >>> {line}\n")
             if event.kind is EventKind.CONFIRMED and self.confirmed_at_s is None:

@@ -60,21 +60,24 @@ def format_time(time_s: float) -> str:
 def format_event(event: Event) -> str:
     when = format_time(event.time_s)
     values = " ".join(f"{k}={v:.4g}" for k, v in event.indicators.items())
+    from bogiemon.judgement.events import SensorFaultDetails
+
     extra = ""
-    if "problems" in event.details:
-        extra = " " + " ".join(f"{ch}:{'/'.join(p)}" for ch, p in event.details["problems"].items())
+    if isinstance(event.details, SensorFaultDetails):
+        extra = " " + " ".join(f"{ch}:{'/'.join(p)}" for ch, p in event.details.problems.items())
     return f"{when}  {event.kind.value:<14} {event.severity.value:<7} {values}{extra}".rstrip()
 
 
 def run(args: argparse.Namespace) -> int:
     from bogiemon.daemon.config import load_config
+    from bogiemon.daemon.event_json import event_body
     from bogiemon.daemon.store import EventStore
     state_dir = Path(args.state_dir) if args.state_dir else load_config(args.config).state.directory
     since_s = parse_since(args.since, time.time()) if args.since else None
     store = EventStore(state_dir, readonly=True)
     try:
         for event in store.events(since_s):
-            print(json.dumps(event.as_dict()) if args.json else format_event(event))
+            print(json.dumps(event_body(event)) if args.json else format_event(event))
     finally:
         store.close()
     return 0

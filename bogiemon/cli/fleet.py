@@ -116,6 +116,13 @@ def run_analyze(args: argparse.Namespace) -> int:
     )
     _print_issues(summary.repaired, "partition(s) damaged or replaced, analysed again")
     _print_issues(summary.issues)
+    if summary.windows == 0:  # a cron job must learn that nothing came of it
+        print(
+            f"bogiemon: analysed nothing: no wagon-day of {shown(summary.root)} gave a window "
+            + ("(see the reasons above)" if summary.issues else "(no recordings found: is FLEET the fleet's folder?)"),
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 

@@ -1,4 +1,4 @@
-"""`bogiemon listen --broker HOST:PORT`: the back office's side, for bench tests and demos.
+"""`bogiemon listen --broker HOST[:PORT]`: the back office's side, for bench tests and demos.
 
 Subscribes to every wagon's events, status and state under --prefix and prints each event once
 (deduplicated by event_id), or commits it to --store. Credentials come from files only, and a
@@ -23,7 +23,8 @@ if TYPE_CHECKING:
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("listen", help="receive the wagons' events from an MQTT broker, each once")
-    p.add_argument("--broker", required=True, metavar="HOST:PORT", help="the broker (an IPv6 address in brackets: [::1]:8883)")
+    p.add_argument("--broker", required=True, metavar="HOST[:PORT]",
+                   help="the broker; the port defaults to MQTT's, 1883, or 8883 with TLS (an IPv6 address in brackets: [::1]:8883)")  # fmt: skip
     p.add_argument("--prefix", default="bogiemon", help="the wagons' topic prefix (default: bogiemon)")
     p.add_argument("--tls", action="store_true", help="TLS, the broker checked against the system's CAs (implied by --tls-ca)")
     p.add_argument("--tls-ca", metavar="F", help="CA certificate(s) the broker's certificate must chain to (PEM)")
@@ -40,24 +41,33 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.set_defaults(run=run)
 
 
-def parse_broker(text: str) -> tuple[str, int]:
+# MQTT's registered ports (IANA): plain and over TLS.
+MQTT_PORT, MQTTS_PORT = 1883, 8883
+
+
+def parse_broker(text: str, tls: bool = False) -> tuple[str, int]:
+    """(host, port) of HOST[:PORT] ([v6]:PORT); without a port, MQTT's: 8883 with TLS, else 1883."""
     from bogiemon.daemon.delivery.listener import ListenError
-    host, sep, port = text.rpartition(":")
+    bracketed = text.startswith("[") and "]" in text
+    if bracketed and not text.endswith("]") or (not bracketed and text.count(":") == 1):
+        host, _, port = text.rpartition(":")
+    else:
+        host, port = text, str(MQTTS_PORT if tls else MQTT_PORT)
     host = host.removeprefix("[").removesuffix("]")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ListenError(f"--broker: expected HOST:PORT, e.g. localhost:8883, got '{text}'")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ListenError(f"--broker: expected HOST or HOST:PORT, e.g. localhost or localhost:8883, got '{text}'")
     return host, int(port)
 
 
 def connection_from_args(args: argparse.Namespace) -> ConnectionSettings:
     from bogiemon.daemon.delivery.connection import ConnectionSettings
     from bogiemon.daemon.delivery.listener import ListenError
-    host, port = parse_broker(args.broker)
+    tls = bool(args.tls or args.tls_ca or args.tls_cert)
+    host, port = parse_broker(args.broker, tls)
     if bool(args.tls_cert) != bool(args.tls_key):
         raise ListenError("--tls-cert and --tls-key go together")
     if args.password_file and not args.username_file:
         raise ListenError("--password-file needs --username-file")
-    tls = bool(args.tls or args.tls_ca or args.tls_cert)
     if args.password_file and not tls and not args.allow_plaintext:
         raise ListenError("--password-file without TLS would send the password in clear: add --tls or --tls-ca (or --allow-plaintext, on a bench)")
     return ConnectionSettings(

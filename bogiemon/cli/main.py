@@ -11,9 +11,9 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from bogiemon.cli import analyze, calibrate, check_config, demo, evaluate, events, fleet, listen, play, replay, run, simulate, study
+from bogiemon.cli import analyze, calibrate, check_config, convert, demo, evaluate, events, fleet, listen, play, replay, run, simulate, study
 
-COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, fleet, play, listen)
+COMMANDS = (run, demo, replay, analyze, calibrate, events, check_config, simulate, study, evaluate, fleet, play, listen, convert)
 # Errors a user can cause: one line on stderr and exit status 2, never a traceback. Named, not
 # imported, so that the command line loads only the command it runs; a test resolves every name.
 USER_ERRORS: frozenset[str] = frozenset(
@@ -38,6 +38,25 @@ USER_ERRORS: frozenset[str] = frozenset(
     }
 )
 EXIT_USER_ERROR = 2
+# The packages of pyproject.toml's extras, which a gateway's install leaves out (docs/gateway.md):
+# a command that needs one says which extra brings it, in one line.
+EXTRA_OF_PACKAGE = {
+    "pyarrow": "recordings",
+    "numba": "sim",
+    "scipy": "sim",
+    "matplotlib": "report",
+    "dask": "fleet",
+    "distributed": "fleet",
+}
+
+
+def missing_extra(exc: ModuleNotFoundError) -> str | None:
+    """The line saying which extra to install for a package an extra brings; None for any other."""
+    package = (exc.name or "").split(".")[0]
+    extra = EXTRA_OF_PACKAGE.get(package)
+    if extra is None:
+        return None
+    return f"this command needs {package}, which this install leaves out: pip install 'bogiemon[{extra}]'"
 
 
 def is_user_error(exc: BaseException) -> bool:
@@ -68,10 +87,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     except KeyboardInterrupt:
         return 130
+    except ModuleNotFoundError as exc:
+        line = missing_extra(exc)
+        if line is None:
+            raise
+        print(f"bogiemon: error: {line}", file=sys.stderr)
+        return EXIT_USER_ERROR
     except Exception as exc:
         if not is_user_error(exc):
             raise
-        print(f"bogiemon: error: {exc}", file=sys.stderr)
+        from bogiemon.drivers.quoting import printable  # a message may quote a file: nothing in it for the terminal to act on
+
+        print(f"bogiemon: error: {printable(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
 
 

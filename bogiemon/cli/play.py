@@ -20,9 +20,10 @@ LAYOUT_CHOICES = ("hub", "per-node")
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("play", help="send a recording on a CAN bus as the sensors would (bench, tests)")
-    p.add_argument("file", metavar="FILE", help="a recording (.csv, .csv.gz or .parquet; header time_s,a1,a2,a3)")
+    p.add_argument("file", metavar="FILE", help="a recording (.csv, .csv.gz, .parquet, MF4 of signals) or a CAN log (decoded with --dbc)")
     p.add_argument("--interface", choices=sorted(KINDS), default="socketcan",
-                   help="python-can interface (default socketcan; virtual: in-process, for tests)")  # fmt: skip
+                   help="python-can interface (default socketcan; virtual: a bus inside this process only, which no other "
+                        "program hears: for tests)")  # fmt: skip
     p.add_argument("--channel", default="vcan0", help="CAN interface or virtual channel (default vcan0)")
     p.add_argument("--rate", type=float, default=1.0,
                    help="pace: 1 real time (default), N times faster, 0 as fast as possible")  # fmt: skip
@@ -36,9 +37,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
+    from bogiemon.daemon.config import load_config
     from bogiemon.drivers.candb import load_layout
-    from bogiemon.drivers.player import PlayError, open_player_bus, play
-    from bogiemon.drivers.recording import read_csv_recording
+    from bogiemon.drivers.player import PlayError, open_player_bus, play, read_samples
 
     if args.rate < 0:
         raise PlayError(f"--rate must be 0 (as fast as possible) or positive, got {args.rate:g}")
@@ -46,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     # so keep Python's last-resort handler from printing a second one.
     logging.getLogger("can").addHandler(logging.NullHandler())
     layout = load_layout(args.dbc, args.layout)
-    recording = read_csv_recording(args.file)
+    recording = read_samples(args.file, layout, load_config(None).processing.fs_hz)
     bus = open_player_bus(args.interface, args.channel)
     try:
         if args.ready_file is not None:
@@ -62,4 +63,13 @@ def run(args: argparse.Namespace) -> int:
         f"on {args.interface} {args.channel} in {stats.wall_s:.2f} s",
         file=sys.stderr,
     )
+    if recording.gaps:
+        print(f"# {args.file}: {recording.gaps} gap(s) in it were played as if the samples had followed on", file=sys.stderr)
+    if args.interface == "virtual":
+        print(
+            f"# note: the virtual interface is a bus inside this process: no other program heard these frames. "
+            f"To feed a gateway on this machine use a vcan interface (--interface socketcan --channel vcan0), or "
+            f"make a CAN log with `bogiemon convert {args.file} -o run.log`",
+            file=sys.stderr,
+        )
     return 0

@@ -15,11 +15,19 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    from bogiemon.daemon.logs import configure_logging
-    from bogiemon.daemon.service import Service
-    from bogiemon.daemon.sources import open_source
+    from bogiemon.daemon.signals import Requests
 
-    configure_logging(level=args.log_level)
-    service = Service(args.config, open_source, load=args.load, state_dir=args.state_dir)
-    service.install_signal_handlers()
-    return service.run()
+    # First: a SIGHUP or SIGTERM from here on is the service's, also while it imports and starts
+    # (SIGHUP's default action ends the process); from its stop to the exit they are ignored.
+    requests = Requests()
+    requests.install()
+    try:
+        from bogiemon.daemon.logs import configure_logging
+        from bogiemon.daemon.service import Service
+        from bogiemon.daemon.sources import open_service_source
+
+        configure_logging(level=args.log_level)
+        service = Service(args.config, open_service_source, load=args.load, state_dir=args.state_dir, requests=requests)
+        return service.run()
+    finally:
+        requests.quiet()

@@ -59,10 +59,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    # The simulator (numba) is imported only by this command.
     from bogiemon.daemon.config import load_config
     from bogiemon.simulator.errors import SimulationError
-    from bogiemon.simulator.run import simulate, write_recording
     from bogiemon.simulator.scenario import Scenario, SpeedProfile
     from bogiemon.simulator.sensors import SensorModel
     from bogiemon.simulator.suspension import parse_fault
@@ -87,6 +85,10 @@ def run(args: argparse.Namespace) -> int:
         max_step_s=args.max_step_s,
         model=args.model,
     )
+    # The simulator's kernel (numba) once the scenario is known to be one: a bad argument is told
+    # without loading it.
+    from bogiemon.simulator.run import simulate, write_recording
+
     bar = ProgressBar(sys.stderr, f"simulating {scenario.duration_s:g} s") if sys.stderr.isatty() and not args.quiet else None
     try:
         result = simulate(scenario, bar)

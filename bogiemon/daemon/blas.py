@@ -7,87 +7,36 @@ of its own: threads buy nothing there, and each spin after a product crossing th
 costs a core for up to about 0.1 s. One such product per 10 s hop cost the live daemon 15 to 40
 CPU seconds per hour (README, Performance): more than the whole processing thread.
 
-Linux only, like the gateway: the loaded OpenBLAS libraries are found in /proc/self/maps and
-asked through their own API (the same calls threadpoolctl makes), so nothing needs to be set
-before numpy is imported. A process without OpenBLAS (a reference BLAS) has nothing to limit.
+threadpoolctl finds the BLAS libraries loaded in the process (OpenBLAS, and MKL, BLIS or
+FlexiBLAS where numpy was built with one) and asks each through its own API, so nothing needs to
+be set before numpy is imported. A process without such a library has nothing to limit.
 """
 
 from __future__ import annotations
 
-import ctypes
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-# The setter's and getter's names: OpenBLAS's own, and those of the copy numpy and scipy wheels
-# bundle (scipy-openblas, 64-bit integers, symbols prefixed and suffixed).
-_PREFIXES = ("openblas_", "scipy_openblas_")
-_SUFFIXES = ("", "64_", "_64_")
+from threadpoolctl import ThreadpoolController
 
 
-@dataclass(frozen=True)
-class BlasLibrary:
-    path: str
-    set_num_threads: Callable[[int], None]
-    get_num_threads: Callable[[], int]
-
-
-def _loaded_paths(maps: str) -> list[str]:
-    """The OpenBLAS shared objects mapped into this process, from the text of /proc/self/maps."""
-    paths: list[str] = []
-    for line in maps.splitlines():
-        fields = line.split(maxsplit=5)  # address, perms, offset, device, inode[, path]
-        path = fields[5].strip() if len(fields) == 6 else ""
-        name = Path(path).name.lower()
-        if "openblas" in name and ".so" in name and path not in paths:
-            paths.append(path)
-    return paths
-
-
-def _bind(path: str) -> BlasLibrary | None:
-    try:
-        lib = ctypes.CDLL(path)  # already loaded: the same handle, no second copy
-    except OSError:
-        return None
-    for prefix in _PREFIXES:
-        for suffix in _SUFFIXES:
-            setter = getattr(lib, f"{prefix}set_num_threads{suffix}", None)
-            getter = getattr(lib, f"{prefix}get_num_threads{suffix}", None)
-            if setter is not None and getter is not None:
-                setter.argtypes, setter.restype = [ctypes.c_int], None
-                getter.argtypes, getter.restype = [], ctypes.c_int
-                return BlasLibrary(path, setter, getter)
-    return None
-
-
-def loaded_blas_libraries() -> list[BlasLibrary]:
-    """The OpenBLAS libraries loaded in this process that can be told a thread count."""
-    try:
-        maps = Path("/proc/self/maps").read_text()
-    except OSError:  # not Linux: nothing found, nothing limited
-        return []
-    found = (_bind(path) for path in _loaded_paths(maps))
-    return [lib for lib in found if lib is not None]
+def blas_thread_counts() -> dict[str, int]:
+    """The thread count of each BLAS library loaded in this process, by its file's name."""
+    return {Path(info["filepath"]).name: int(info["num_threads"]) for info in ThreadpoolController().select(user_api="blas").info()}
 
 
 @dataclass(frozen=True)
 class BlasLimit:
-    """What limit_blas_threads changed: each library with the thread count it had before."""
+    """What limit_blas_threads changed: the libraries, and how to give each its count back."""
 
-    before: tuple[tuple[BlasLibrary, int], ...]
-
-    @property
-    def libraries(self) -> list[str]:
-        return [Path(lib.path).name for lib, _ in self.before]
-
-    def restore(self) -> None:
-        for lib, n in self.before:
-            lib.set_num_threads(n)
+    libraries: list[str]
+    restore: Callable[[], None]
 
 
 def limit_blas_threads(n_threads: int = 1) -> BlasLimit:
-    """Limit every loaded OpenBLAS to n_threads; the result restores what each had."""
-    before = tuple((lib, lib.get_num_threads()) for lib in loaded_blas_libraries())
-    for lib, _ in before:
-        lib.set_num_threads(n_threads)
-    return BlasLimit(before)
+    """Limit every loaded BLAS library to n_threads; the result restores what each had."""
+    controller = ThreadpoolController().select(user_api="blas")
+    libraries = [Path(info["filepath"]).name for info in controller.info()]
+    limiter = controller.limit(limits=n_threads)
+    return BlasLimit(libraries, limiter.restore_original_limits)

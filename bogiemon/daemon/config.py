@@ -9,6 +9,7 @@ config_delivery.py, each field with its description; here they are put together,
 
 from __future__ import annotations
 
+import codecs
 import difflib
 import hashlib
 import json
@@ -24,6 +25,7 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from bogiemon.daemon.config_decision import DecisionConfig
 from bogiemon.daemon.config_delivery import CanAlarmsConfig, MqttConfig, RecorderConfig
+from bogiemon.daemon.config_duty import DutyConfig
 from bogiemon.daemon.config_sections import (  # the sections, importable from here as before
     ConfigError,
     GeometryConfig,
@@ -52,6 +54,7 @@ from bogiemon.detection import BogieGeometry, ProcessingSettings
 from bogiemon.drivers.files import FileKind, read_untrusted
 
 if TYPE_CHECKING:
+    from bogiemon.daemon.duty import DutySettings
     from bogiemon.daemon.recorder import RecorderSettings
     from bogiemon.judgement.verdict import MonitorSettings
 
@@ -62,6 +65,7 @@ __all__ = [
     "CanSourceConfig",
     "ConfigError",
     "DecisionConfig",
+    "DutyConfig",
     "GeometryConfig",
     "HealthConfig",
     "MqttConfig",
@@ -77,6 +81,7 @@ __all__ = [
     "WagonConfig",
     "default_config_text",
     "load_config",
+    "load_config_and_files",
     "parse_config",
     "validate_config",
 ]
@@ -118,6 +123,18 @@ class BogiemonConfig(Section):
     mqtt: MqttConfig = MqttConfig()
     can_alarms: CanAlarmsConfig = CanAlarmsConfig()
     recorder: RecorderConfig = RecorderConfig()
+    duty: DutyConfig = DutyConfig()
+
+    @model_validator(mode="after")
+    def _duty_measures_a_window(self) -> BogiemonConfig:
+        d = self.duty
+        if d.enabled and d.measure_min * 60.0 < self.processing.window_s + self.processing.hop_s:
+            raise ValueError(
+                f"duty.measure_min ({d.measure_min:g} min) must hold more than one analysis window and a hop "
+                f"(processing.window_s + hop_s = {self.processing.window_s + self.processing.hop_s:g} s): a shorter "
+                "measurement is never judged"
+            )
+        return self
 
     @model_validator(mode="after")
     def _mqtt_needs_the_wagon(self) -> BogiemonConfig:
@@ -276,6 +293,22 @@ class BogiemonConfig(Section):
             not_judged_after_s=3600.0 * self.decision.not_judged_after_h,
         )
 
+    def duty_settings(self) -> DutySettings | None:
+        """The duty cycle's settings (daemon/duty.py); None when [duty] is not enabled."""
+        from bogiemon.daemon.duty import DutySettings  # only when enabled
+
+        d = self.duty
+        if not d.enabled:
+            return None
+        return DutySettings(
+            measure_s=d.measure_min * 60.0,
+            cycle_s=d.every_min * 60.0,
+            standing_after_s=d.standing_after_s,
+            probe_every_s=d.probe_every_s,
+            probe_s=d.probe_s,
+            standstill_rms_mps2=self.health.standstill_rms_mps2,
+        )
+
     def recorder_settings(self) -> RecorderSettings | None:
         """What the recorder needs: its section, the windows and confirmation whose samples a
         snapshot holds, and the event store's reserve (with room for the MQTT outbox full of status
@@ -325,8 +358,16 @@ def load_config(
     config: the caller chose them, so they are not held to the folder). With log_warnings,
     credential files others can read are logged as warnings (check-config prints them instead).
     """
+    return load_config_and_files(path, log_warnings=log_warnings, extra_includes=extra_includes)[0]
+
+
+def load_config_and_files(
+    path: str | Path | None = None, *, log_warnings: bool = True, extra_includes: Sequence[str | Path] = ()
+) -> tuple[BogiemonConfig, tuple[Path, ...]]:
+    """load_config, and the files it read: the config file, then its includes in order (none for
+    the shipped default)."""
     if path is None:
-        return parse_config(default_config_text(), source="default config")
+        return parse_config(default_config_text(), source="default config"), ()
     path = Path(path)
     data = _read_toml(path)
     names = data.get("include", [])
@@ -355,7 +396,7 @@ def load_config(
         log = get_logger(component="config")
         for warning in warnings:
             log.warning(warning, config=str(path))
-    return config
+    return config, (path, *fragment_paths)
 
 
 def parse_config(text: str, source: str) -> BogiemonConfig:
@@ -390,10 +431,14 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 
 def _read_text(path: Path) -> str:
-    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8."""
+    """A config file's text: a regular file of at most MAX_CONFIG_BYTES (drivers/files.py), UTF-8;
+    a UTF-8 byte-order mark (an editor's) is read past, one of UTF-16 or UTF-32 named."""
     raw = read_untrusted(path, CONFIG_FILE, ConfigError)
+    for mark, encoding in ((codecs.BOM_UTF32_LE, "UTF-32"), (codecs.BOM_UTF32_BE, "UTF-32"), (codecs.BOM_UTF16_LE, "UTF-16"), (codecs.BOM_UTF16_BE, "UTF-16")):
+        if raw.startswith(mark):
+            raise ConfigError(f"{path}: a {encoding} text file (it begins with a {encoding} byte-order mark); save it as UTF-8, a config is TOML")
     try:
-        return raw.decode("utf-8")
+        return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}); a config is TOML") from None
 

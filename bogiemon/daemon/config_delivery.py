@@ -9,7 +9,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from bogiemon.daemon.config_sections import Section
-from bogiemon.drivers.recording import RecordingFormat
+from bogiemon.drivers.recording import NEEDS_PYARROW, RecordingFormat, parquet_available
 
 MIB = 1 << 20
 
@@ -119,8 +119,15 @@ class RecorderConfig(Section):
     format: RecordingFormat = Field(RecordingFormat.CSV_GZ, description=(
         "\"csv.gz\" (gzip CSV, the standard library's: the gateway loads nothing more) or \"parquet\" "
         "(columnar, half the size, read without parsing text; the daemon then loads pyarrow, about 40 MB "
-        "more memory). Every command that reads recordings reads both."
+        "more memory, which a gateway installed from the bundle lacks: `pip install 'bogiemon[recordings]'`). "
+        "Every command that reads recordings reads both (Parquet with pyarrow)."
     ))  # fmt: skip
+
+    @model_validator(mode="after")
+    def _format_installed(self) -> RecorderConfig:
+        if self.enabled and self.format is RecordingFormat.PARQUET and not parquet_available():
+            raise ValueError(f"format = \"parquet\" {NEEDS_PYARROW}")
+        return self
 
     @model_validator(mode="after")
     def _periodic_fits(self) -> RecorderConfig:

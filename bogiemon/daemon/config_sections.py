@@ -7,9 +7,10 @@ gateway in config_delivery.py. BogiemonConfig (daemon/config.py) puts them toget
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from bogiemon.detection import Corner, ProcessingSettings
 
@@ -24,6 +25,58 @@ class Section(BaseModel):
     # No field takes inf or nan: every number of the config is a duration, a rate, a level or a
     # count, and a non-finite one ends in OverflowError or NaN far from the file that caused it.
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _as_written(cls, value: Any, info: ValidationInfo) -> Any:
+        """A value of the type TOML wrote for it: pydantic would take true as 1, "5" as 5 and 1 as
+        true, and a typo of the file's would run as a setting nobody wrote (numbers and switches)."""
+        if info.field_name is not None:
+            problem = _wrong_type(value, cls.model_fields[info.field_name].annotation)
+            if problem is not None:
+                raise ValueError(problem)
+        return value
+
+
+def _wrong_type(value: Any, annotation: Any) -> str | None:
+    """Why value is not what annotation asks for among numbers and switches (lists of them too), or None."""
+    kinds = _scalar_kinds(annotation)
+    if kinds & {int, float} and bool not in kinds and isinstance(value, bool):
+        return "expected a number, not true or false"
+    if kinds & {int, float} and str not in kinds and isinstance(value, str):
+        return "expected a number, not a string (no quotes around a number)"
+    if int in kinds and not kinds & {float, str} and isinstance(value, float):
+        return "expected a whole number"
+    if kinds == {bool} and not isinstance(value, bool):
+        return "expected true or false"
+    item = _item_annotation(annotation)
+    if item is not None and isinstance(value, list | tuple):
+        for i, element in enumerate(value):
+            problem = _wrong_type(element, item)
+            if problem is not None:
+                return f"item {i}: {problem}"
+    return None
+
+
+def _scalar_kinds(annotation: Any) -> set[type]:
+    """The scalar types a field admits (int, float, bool, str), through unions and Annotated."""
+    if annotation in (int, float, bool, str):
+        return {annotation}
+    if get_origin(annotation) is Annotated:
+        return _scalar_kinds(get_args(annotation)[0])
+    if get_origin(annotation) in (Union, UnionType):
+        return set().union(*(_scalar_kinds(a) for a in get_args(annotation)))
+    return set()
+
+
+def _item_annotation(annotation: Any) -> Any:
+    """The element type of a list or tuple field (tuple[X, ...] or a tuple of one kind), else None."""
+    if get_origin(annotation) is Annotated:
+        return _item_annotation(get_args(annotation)[0])
+    args = [a for a in get_args(annotation) if a is not Ellipsis]
+    if get_origin(annotation) in (list, tuple) and len(set(args)) == 1:
+        return args[0]
+    return None
 
 
 class GeometryConfig(Section):

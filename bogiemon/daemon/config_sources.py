@@ -3,11 +3,14 @@ bundled simulator), chosen by its `kind` field (docs/drivers.md)."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, Discriminator, Field, Tag, model_validator
 
 from bogiemon.daemon.config_sections import Section
+
+if TYPE_CHECKING:
+    from bogiemon.drivers.columns import ColumnMap
 
 _LAYOUT = "The frame layout: \"hub\" (one SensorHub frame per instant) or \"per-node\" (SensorNode1..3 answering Sync)."
 _DBC = "The DBC file describing the layouts; empty: the shipped config/bogiemon.dbc."
@@ -79,6 +82,28 @@ class ReplaySourceConfig(_SourceSection):
     realtime: bool = Field(True, description="true: at the recording's real-time pace; false: as fast as the daemon reads.")
     layout: Literal["hub", "per-node"] = Field("hub", description="For CAN logs: the frame layout, as for kind \"can\".")
     dbc_path: str = Field("", description="For CAN logs: the DBC file, as for kind \"can\".")
+    unit: Literal["m/s^2", "g", "mm/s^2"] = Field("m/s^2", description=(
+        "For recordings of samples: the unit of the accelerations. A file whose static levels say another unit (about 1: g; "
+        "about 9810: mm/s^2) is refused, naming it."
+    ))  # fmt: skip
+    columns: str = Field("", description=(
+        "For recordings of samples written by others: which columns are the time and the channels, as "
+        "\"time=NAME,a1=NAME,a2=NAME,a3=NAME\" (pairs left out keep bogiemon's names; the time column by default the "
+        "first of time_s, time, timestamp, ..., in s, or ms/us/ns as its name or Unix-time magnitude says)."
+    ))  # fmt: skip
+
+    @model_validator(mode="after")
+    def _a_mapping(self) -> ReplaySourceConfig:
+        from bogiemon.drivers.columns import parse_columns  # numpy and the standard library only
+
+        parse_columns(self.columns)  # ValueError naming the pair that is wrong
+        return self
+
+    def column_map(self) -> ColumnMap:
+        """The mapping and unit the recording is read with."""
+        from bogiemon.drivers.columns import AccelUnit, ColumnMap, parse_columns
+
+        return parse_columns(self.columns, ColumnMap(unit=AccelUnit(self.unit)))
 
 
 class SimulatedSourceConfig(_SourceSection):

@@ -2,11 +2,17 @@
 
 pydantic at the edge where events leave the process: the publisher builds these models and the
 back-office consumer (`bogiemon listen`) and the fleet's judgement validate what they receive with
-the same ones. A leaf: it imports pydantic and the event record alone (never the monitor, the store,
-paho or python-can), so a reader of the messages does not load the sender's stack; the status of a
+the same ones. A leaf: it imports pydantic and the event record alone (with its JSON,
+daemon/event_json.py; never the monitor, the store, paho or python-can), so a reader of the
+messages does not load the sender's stack; the status of a
 running monitor is built in daemon/delivery/status.py. A schema
-id ("bogiemon.event/1") changes its number only when a field is removed, renamed or changes its
+id ("bogiemon.event/2") changes its number only when a field is removed, renamed or changes its
 meaning; new optional fields keep it, so readers ignore fields they do not know.
+
+An event's details are its kind's record as daemon/event_json.py writes it; a received message
+whose details are not a record of its kind is refused like any other field. bogiemon.event/2 writes
+the k-of-n counts as objects ({"k": 3, "n": 5}, where /1 wrote "3 of 5"): both are read, so a back
+office reads the gateways that still send /1 (and their backlog) as well as the new ones.
 
 Every wagon's input is untrusted at the back office, so the models bound what they accept: finite
 times in a plausible range, integers that fit SQLite's INTEGER, names that are topic levels, the
@@ -19,12 +25,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Any, Final, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, TypeAdapter, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError, PydanticSerializationError
 
-from bogiemon.judgement.events import Event
+from bogiemon.daemon.event_json import EventJsonError, details_from_body, event_body
+from bogiemon.judgement.events import DEFAULT_BOGIE, Event, EventDetails, EventKind, Severity
+from bogiemon.judgement.vocabulary import Mode
 
-EVENT_SCHEMA: Final = "bogiemon.event/1"
+EVENT_SCHEMA: Final = "bogiemon.event/2"
 STATUS_SCHEMA: Final = "bogiemon.status/1"
 # The retained payloads of the state topic: "online" on connect, "offline" as the last will.
 STATE_ONLINE, STATE_OFFLINE = "online", "offline"
@@ -103,18 +111,22 @@ class EventMessage(_Message):
     """One committed event, on {prefix}/{wagon_id}/events (QoS 1, not retained)."""
 
     # The JSON field is "schema" (an attribute of that name would shadow BaseModel.schema).
-    schema_id: Literal["bogiemon.event/1"] = Field(EVENT_SCHEMA, alias="schema")
+    # /1 wrote the k-of-n counts as "k of n" (daemon/event_json.py reads both).
+    schema_id: Literal["bogiemon.event/1", "bogiemon.event/2"] = Field(EVENT_SCHEMA, alias="schema")
     wagon_id: Name
     seq: Seq  # the event's number in this wagon's event store: increases in commit order
     event_id: Name  # unique; a duplicate delivery carries the same one
     time_s: UnixTime  # end of the window that caused the event, Unix seconds (the source's clock)
     # NOT_JUDGED and JUDGED_AGAIN since 2026-12: an older reader refuses them as outside the schema
     # (one line, counted) and reads every other event on (docs/mqtt.md).
-    kind: Literal["SUSPECTED", "CONFIRMED", "CLEARED", "SENSOR_FAULT", "SENSOR_CLEARED", "NOT_JUDGED", "JUDGED_AGAIN"]
-    severity: Literal["info", "warning", "alarm"]
+    kind: EventKind
+    severity: Severity
     config_hash: Annotated[str, StringConstraints(max_length=128)]
     indicators: Indicators  # the values that fired (null: not finite)
     details: Annotated[dict[Annotated[str, StringConstraints(max_length=64)], Any], Field(max_length=MAX_ENTRIES)]
+    # The bogie the event is about ([[bogie]] id; "1" on a one-bogie gateway). Absent from the
+    # messages of gateways before two bogies: bogie "1"'s, as daemon/event_json.py reads a body.
+    bogie: Annotated[str, StringConstraints(pattern=NAME, max_length=16)] = DEFAULT_BOGIE
 
     @field_validator("details")
     @classmethod
@@ -129,15 +141,28 @@ class EventMessage(_Message):
                     raise PydanticCustomError("problems", expected, {"key": key, "reason": describe(exc)}) from None
         return details
 
+    @model_validator(mode="after")
+    def _details_of_its_kind(self) -> EventMessage:
+        try:
+            self.details_record()
+        except EventJsonError as exc:
+            raise PydanticCustomError("details", "{reason}", {"reason": str(exc)}) from None
+        return self
+
+    def details_record(self) -> EventDetails:
+        """The details as the record of the event's kind (judgement/events.py); validated, they read."""
+        return details_from_body(self.kind, self.details)
+
     @classmethod
     def from_event(cls, wagon_id: str, seq: int, event: Event) -> EventMessage:
-        body = event.as_dict()
-        return cls(wagon_id=wagon_id, seq=seq, **body)
+        return cls(wagon_id=wagon_id, seq=seq, **event_body(event))
 
     def to_event(self) -> Event:
-        body = self.model_dump(exclude={"schema_id", "wagon_id", "seq"})
-        body["indicators"] = {name: float("nan") if v is None else v for name, v in self.indicators.items()}
-        return Event.from_dict(body)
+        indicators = {name: float("nan") if v is None else v for name, v in self.indicators.items()}
+        return Event(
+            self.time_s, self.kind, self.severity, self.config_hash, indicators, details=self.details_record(), event_id=self.event_id,
+            bogie=self.bogie,
+        )
 
 
 class LatestWindow(_Message):
@@ -173,7 +198,7 @@ class StatusMessage(_Message):
     schema_id: Literal["bogiemon.status/1"] = Field(STATUS_SCHEMA, alias="schema")
     wagon_id: Name
     time_s: UnixTime  # when the status was taken, Unix seconds (the gateway's clock)
-    mode: Literal["normal", "suspected", "confirmed"]
+    mode: Mode
     config_hash: Annotated[str, StringConstraints(max_length=128)]
     window: LatestWindow | None  # null until the first window is complete
     counters: Annotated[dict[ShortName, Count], Field(max_length=MAX_ENTRIES)]  # the monitor's, since the daemon started
@@ -201,10 +226,10 @@ def decode(model: type[M], payload: bytes) -> M:
 
 
 def encode_event(wagon_id: str, seq: int, event: Event) -> str:
-    """The payload of a stored event; SchemaError when it cannot go out as bogiemon.event/1.
+    """The payload of a stored event; SchemaError when it cannot go out as bogiemon.event/2.
 
-    The store gives back what Python's json wrote (any float, any nesting, lone surrogates): what a
-    reader would refuse is refused here, before it is sent.
+    The store gives back what Python's json wrote (any float, lone surrogates): what a reader would
+    refuse is refused here, before it is sent.
     """
     try:
         return _encode(EventMessage.from_event(wagon_id, seq, event))

@@ -3,7 +3,8 @@
 Everything the daemon concludes happens in the processing thread (the monitor and its event
 store); the source thread only reads and copies, so a slow disk or a burst of windows never
 makes the source miss frames, and a stalled source never blocks the processing of what arrived.
-The watchdog asks `last_progress_monotonic`: it moves only when a block passed through.
+The watchdog asks `last_progress_monotonic`: it moves only when a block passed through, or while
+the source rests on purpose (a duty cycle, daemon/duty.py).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.monitor import Monitor
@@ -20,6 +22,53 @@ from bogiemon.drivers.base import EndOfStream, Source
 from bogiemon.drivers.recording import RecordingError
 
 READ_TIMEOUT_S = 0.5
+# A source at rest (a duty cycle) is asked less often: its thread wakes every 2 s instead of twice
+# a second, a standing wagon's daemon being mostly such wake-ups; a stop waits for it at most that.
+REST_READ_TIMEOUT_S = 2.0
+PR_SET_NAME = 15  # linux/prctl.h
+
+
+def name_os_thread(name: str) -> None:
+    """Give the calling thread its name in the kernel too (15 bytes), where `top -H`, `ps -L` and
+    /proc/PID/task/TID/comm show it: which of the daemon's threads spends the CPU. Linux only;
+    elsewhere, or if the call fails, the thread keeps the process's name."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).prctl(PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+# A live source this far behind real time (Source.behind_s: samples received and not yet handed
+# on, beyond the block being filled) is said in the journal at warning, and once it has caught up
+# at info with how far behind it was at most and for how long: after a burst of errors or a stall
+# the keeper sees that data came late, and how late.
+BEHIND_S = 1.0
+
+
+class BehindWatch:
+    """Tells the journal when a live source falls behind real time, and when it has caught up."""
+
+    def __init__(self, log: Any, clock: Callable[[], float] = time.monotonic) -> None:
+        self._log = log
+        self._clock = clock
+        self._since_s: float | None = None  # behind since then (the clock's time); None: in time
+        self._most_s = 0.0
+
+    def observe(self, behind_s: float) -> None:
+        if self._since_s is None:
+            if behind_s >= BEHIND_S:
+                self._since_s, self._most_s = self._clock(), behind_s
+                self._log.warning("the source fell behind real time", behind_s=round(behind_s, 3))
+            return
+        self._most_s = max(self._most_s, behind_s)
+        if behind_s == 0.0:
+            self._log.info(
+                "the source caught up with real time", behind_at_most_s=round(self._most_s, 3),
+                behind_for_s=round(self._clock() - self._since_s, 3),
+            )  # fmt: skip
+            self._since_s = None
 
 
 class Pipeline:
@@ -59,10 +108,12 @@ class Pipeline:
             return fn(self.monitor)
 
     def _read_loop(self) -> None:
+        name_os_thread("bogiemon-source")
+        behind = None if self.source.finite else BehindWatch(self._log)
         try:
             while not self._stop.is_set():
                 try:
-                    block = self.source.read(READ_TIMEOUT_S)
+                    block = self.source.read(REST_READ_TIMEOUT_S if self.source.resting else READ_TIMEOUT_S)
                 except EndOfStream:
                     break
                 except RecordingError as exc:
@@ -71,7 +122,11 @@ class Pipeline:
                     # whoever runs the pipeline names the file (replay: one line, exit 2).
                     self.error = exc
                     break
+                if behind is not None:
+                    behind.observe(self.source.behind_s())
                 if block is None:
+                    if self.source.resting:  # a duty cycle's rest: no data, on purpose, and no stall
+                        self.last_progress_monotonic = time.monotonic()
                     continue
                 stored = self.ring.put(block, timeout_s=READ_TIMEOUT_S)
                 while not stored and self.ring.backpressure and not self._stop.is_set():
@@ -83,10 +138,12 @@ class Pipeline:
             self.ring.close()
 
     def _process_loop(self) -> None:
+        name_os_thread("bogiemon-core")
         try:
             while True:
                 try:
-                    block = self.ring.get(timeout_s=READ_TIMEOUT_S)
+                    # No timeout: a block or the ring's closing wakes it, nothing else needs it.
+                    block = self.ring.get(timeout_s=None)
                 except RingClosed:
                     break
                 if block is None:

@@ -258,26 +258,38 @@ class Recorder:
             self._submit(PendingRecording(reason, ring.time_of(start), ring.fs_hz, ring.take(start, end)))
 
     def _periodic_feed(self, block: Block, ring: SampleRing) -> None:
+        """Collect the periodic recordings in this block's samples: one starts at the first sample
+        after every periodic_every_h of running, also within the block where the last one ended (a
+        block longer than the time between two recordings would otherwise delay the next ones
+        until they fell a period behind and one was never written)."""
         n = block.n_samples
         before_s = self._running_s
         self._running_s += n / block.fs_hz
-        if self._periodic is not None:
-            self._collect(block.accel_mps2)
-        elif self._running_s >= self._next_periodic_s:
-            offset = min(n - 1, max(0, math.ceil((self._next_periodic_s - before_s) * block.fs_hz - _HOP_SLACK)))
+        at = 0  # the block's samples looked at so far
+        while at < n:
+            if self._periodic is not None:
+                at += self._collect(block.accel_mps2[at:])
+                continue
+            if self._running_s < self._next_periodic_s:
+                return
+            offset = max(at, math.ceil((self._next_periodic_s - before_s) * block.fs_hz - _HOP_SLACK))
+            if offset >= n:
+                return  # the first sample after it is the next block's
             self._next_periodic_s += self.settings.periodic_every_h * 3600.0
             self._periodic = []
             self._periodic_start_s = ring.time_of(ring.end_index - n + offset)
             self._periodic_left_n = max(2, round(self.settings.periodic_s * block.fs_hz))
-            self._collect(block.accel_mps2[offset:])
+            at = offset
 
-    def _collect(self, accel_mps2: NDArray[np.float64]) -> None:
+    def _collect(self, accel_mps2: NDArray[np.float64]) -> int:
+        """Add samples to the periodic recording being collected, as many as it lacks; how many."""
         assert self._periodic is not None
         piece = accel_mps2[: self._periodic_left_n].astype(np.float32)
         self._periodic.append(piece)
         self._periodic_left_n -= piece.shape[0]
         if self._periodic_left_n == 0:
             self._end_periodic()
+        return int(piece.shape[0])
 
     def _end_periodic(self) -> None:
         """Queue the periodic recording being collected (cut short at a gap or at close)."""

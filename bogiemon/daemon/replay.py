@@ -28,7 +28,7 @@ from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.daemon.pipeline import Pipeline
 from bogiemon.daemon.ringbuffer import BlockRing
 from bogiemon.daemon.sinks import EventSink
-from bogiemon.daemon.sources import open_source, replay_source_config
+from bogiemon.daemon.sources import duty_cycled, open_source, replay_source_config
 from bogiemon.daemon.store import EventStore
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.recording import RecordingError
@@ -85,8 +85,12 @@ def replay(
     state_dir: str | Path | None = None,
     sinks: Sequence[EventSink] = (),
     observers: Sequence[Callable[[WindowVerdict], None]] = (),
+    duty: bool = False,
 ) -> ReplaySummary:
-    """Run recordings in order through one Monitor; RecordingError for a file it cannot use."""
+    """Run recordings in order through one Monitor; RecordingError for a file it cannot use.
+
+    duty: each recording read on the config's [duty] cycle as `run` reads its source (its rests
+    skip samples by their times): what the duty cycle costs the detection."""
     if not paths:
         raise ValueError("replay needs at least one recording")
     reports: list[RecordingReport] = []
@@ -98,6 +102,8 @@ def replay(
                 replay = replay_source_config(path, config, realtime)
                 run_config = config.model_copy(update={"source": replay})
                 source = open_source(run_config)
+                if duty:
+                    source = duty_cycled(source, config)
                 try:
                     # The rate of a CSV recording is its own: check the config can run at it
                     # before the pipeline starts, naming the file, not deep in a thread.

@@ -3,23 +3,20 @@
 The main thread only supervises: it tells systemd READY=1 once the first block went through,
 pings WATCHDOG=1 only while blocks keep moving (a stalled source or core lets systemd restart
 us), publishes STATUS= with the latest window, reloads on SIGHUP (a bad new config is logged
-and rejected, the old one keeps running) and drains on SIGTERM. Signal handlers only set flags.
+and rejected, the old one keeps running) and drains on SIGTERM. Signal handlers only set a flag and
+write a byte to a pipe the main thread sleeps on (daemon/signals.py).
 While it runs, numpy's BLAS keeps to one thread (daemon/blas.py says why).
 """
 
 from __future__ import annotations
 
 import math
-import signal
-import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 
 from bogiemon.daemon.blas import limit_blas_threads
-from bogiemon.daemon.config import BogiemonConfig, ConfigError, StateConfig, load_config
+from bogiemon.daemon.config import BogiemonConfig, ConfigError, StateConfig, load_config_and_files
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.logs import get_logger
 from bogiemon.judgement.models import excitation_of
@@ -28,9 +25,12 @@ from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.judgement.vocabulary import LoadState, Method
 from bogiemon.daemon.notify import Notifier
 from bogiemon.daemon.pipeline import Pipeline
-from bogiemon.daemon.recorder import Recorder, keep_the_reserve_free
+from bogiemon.daemon.recorder import Recorder
 from bogiemon.daemon.ringbuffer import BlockRing
+from bogiemon.daemon.signals import Requests
 from bogiemon.daemon.sinks import EventSink, LogSink
+from bogiemon.daemon.startup import Snapshot, check_start
+from bogiemon.daemon.statedir import give_back
 from bogiemon.daemon.store import EventStore, StoreError
 from bogiemon.drivers.base import Source
 from bogiemon.drivers.recording import RecordingError
@@ -68,12 +68,6 @@ def status_line(report: WindowVerdict | None, monitor: Monitor) -> str:
     return ", ".join(parts)
 
 
-@dataclass
-class _Flags:
-    stop: threading.Event
-    reload: threading.Event
-
-
 class Service:
     def __init__(
         self,
@@ -84,26 +78,33 @@ class Service:
         sinks: list[EventSink] | None = None,
         observers: list[Callable[[WindowVerdict], None]] | None = None,
         state_dir: str | Path | None = None,
+        requests: Requests | None = None,
     ) -> None:
+        # Asked of the service by a signal or another thread (request_stop, request_reload). `bogiemon
+        # run` makes them and installs their handlers before the config is read (a signal during the
+        # start is the service's too); otherwise the service has its own.
+        self.requests = requests if requests is not None else Requests()
+        self._own_requests = requests is None
         self.config_path = config_path
         self.state_dir = Path(state_dir) if state_dir is not None else None
-        self.config = self._load_config()  # a bad config at start is a user error: exit 2
+        self.config, files = self._load_config()  # a bad config at start is a user error: exit 2
+        self.snapshot = Snapshot.of(self.config, files)  # the config and the files it names, as the service runs them
         self.load = load
         self.source_factory = source_factory
         self.notifier = notifier or Notifier()
         self.sinks = sinks if sinks is not None else [LogSink()]
         self.observers = observers or []
-        self.flags = _Flags(threading.Event(), threading.Event())
         self.recorder: Recorder | None = None  # [recorder] enabled: it taps the monitor's blocks and windows
         self._log = get_logger(component="service")
 
-    def _load_config(self) -> BogiemonConfig:
-        """The config file, with the state directory of the command line in place of its own (at
-        every reload too: `--state-dir` holds for the whole run, as the file's [state] would)."""
-        config = load_config(self.config_path)
+    def _load_config(self) -> tuple[BogiemonConfig, tuple[Path, ...]]:
+        """The config file and the files it read, with the state directory of the command line in
+        place of its own (at every reload too: `--state-dir` holds for the whole run, as the file's
+        [state] would)."""
+        config, files = load_config_and_files(self.config_path)
         if self.state_dir is None:
-            return config
-        return config.model_copy(update={"state": StateConfig(directory=self.state_dir)})
+            return config, files
+        return config.model_copy(update={"state": StateConfig(directory=self.state_dir)}), files
 
     def _warn_if_not_commissioned(self, config: BogiemonConfig) -> None:
         """The fused method without this wagon's calibration judges against the fleet's population
@@ -118,22 +119,38 @@ class Service:
             )
 
     def install_signal_handlers(self) -> None:
-        def on_stop(signum: int, _frame: FrameType | None) -> None:
-            self.flags.stop.set()
+        """SIGTERM and SIGINT stop the service, SIGHUP reloads it (the main thread only); they are
+        ignored from the moment it stops (daemon/signals.py says why)."""
+        self.requests.install()
 
-        def on_reload(signum: int, _frame: FrameType | None) -> None:
-            self.flags.reload.set()
+    def request_stop(self) -> None:
+        """Stop, as SIGTERM does (from any thread)."""
+        self.requests.request_stop()
 
-        signal.signal(signal.SIGTERM, on_stop)
-        signal.signal(signal.SIGINT, on_stop)
-        signal.signal(signal.SIGHUP, on_reload)
+    def request_reload(self) -> None:
+        """Reload the config, as SIGHUP does (from any thread)."""
+        self.requests.request_reload()
 
     def run(self) -> int:
-        recorder_settings = self.config.recorder_settings()
-        if recorder_settings is not None:
-            # Recordings on a disk filled to its last pages (by an earlier version, say) would not even
-            # let the store open, and the recorder starts after it: their room first (docs/recorder.md).
-            keep_the_reserve_free(recorder_settings)
+        try:
+            return self._run()
+        finally:
+            self.requests.quiet()  # the handlers, if installed, ignore the signals from now on ...
+            if self._own_requests:
+                self.requests.close()  # ... so that none writes to the pipe's closed, maybe reused, descriptor
+
+    def _run(self) -> int:
+        if self.requests.stop:  # asked to stop while it started (the config read): nothing opened yet
+            self._log.info("stopped before it started")
+            return EXIT_OK
+        # What bogiemon left on a disk filled to its last pages (a recording killed in the middle of its
+        # write, recordings of an earlier version) would not even let the store open, and the
+        # recorder starts after it: their room first (daemon/statedir.py, docs/recorder.md).
+        give_back(self.config)
+        # What check-config checks, run here first: a file the config names that cannot be used
+        # (a DBC, a recording, a damaged store) stops the start before anything is opened for writing.
+        for problem in check_start(self.config):
+            self._log.warning(problem)
         try:
             store = EventStore(self.config.state.directory)
         except StoreError as exc:
@@ -164,9 +181,11 @@ class Service:
         store_failures = 0  # the monitor's count when STATUS last told it: a new failure is told at once
         tick_s = min(1.0, (self.notifier.watchdog_interval_s or 2.0) / 2)
         try:
-            while not self.flags.stop.wait(tick_s):
-                if self.flags.reload.is_set():
-                    self.flags.reload.clear()
+            while True:
+                self.requests.wait(tick_s)
+                if self.requests.stop:
+                    break
+                if self.requests.take_reload():
                     pipeline = self._reload(pipeline, monitor)
                 if not ready and pipeline.first_block.is_set():
                     ready = True
@@ -183,6 +202,7 @@ class Service:
                 if pipeline.finished.is_set():  # a finite source ended, or a thread failed
                     break
         finally:
+            self.requests.quiet()  # stopping: a signal now is neither a reload nor a second stop
             self.notifier.stopping()
             pipeline.stop()
             pipeline.source.close()
@@ -269,25 +289,32 @@ class Service:
             self.notifier.ready(status="reload rejected: " + " ".join(line.strip() for line in reason.splitlines()))
 
         try:
-            new = self._load_config()
-            # Everything the monitor takes, built before anything changes (the fused model's fit included).
-            settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
+            new, files = self._load_config()
+            snapshot = Snapshot.of(new, files)
+            changed = self.snapshot.changed(snapshot)
+            if changed:
+                # The files it names are opened and parsed as at a start: a DBC, a model file or a
+                # recording that cannot be used rejects the whole reload.
+                for problem in check_start(new):
+                    self._log.warning("reload: " + problem)
+                # Everything the monitor takes, built before anything changes (the fused model's fit included).
+                settings = new.monitor_settings(self.load, pipeline.source.fs_hz)
         except Exception as exc:
             reject(exc, "load")
             return pipeline
-        if new.digest() == old.digest():
-            # The same config (its includes too): nothing to apply, nothing restarts. A reload storm
-            # (a tool reloading on every change of a folder, say) must never make the monitor blind.
-            self._log.info("reloaded", config_hash=new.digest(), unchanged=True, windows_restart=False)
+        if not changed:
+            # The same config, includes and named files: nothing to apply, nothing restarts. A reload
+            # storm (a tool reloading on every change of a folder, say) must never make the monitor blind.
+            self._log.info("reloaded", config_hash=new.digest(), files_hash=snapshot.digest, unchanged=True, windows_restart=False)
             self.notifier.ready(status="reloaded: the config is unchanged")
             return pipeline
-        restart_source = new.model_dump().get("source") != old.model_dump().get("source") or new.pipeline != old.pipeline
+        restart_source = bool(changed & {"source", "pipeline", "duty"})  # its settings, or a file it reads (a DBC, the recording), or its duty cycle
         source_stopped = False
         restarted: list[bool] = []
         try:
             self.config = new
             pipeline.with_monitor(lambda m: restarted.append(m.reconfigure(settings)))
-            self.delivery.apply(new)  # restarts the publisher or the CAN alarms only if their sections changed
+            self.delivery.apply(new, changed)  # restarts the publisher or the CAN alarms only if their sections changed
             if restart_source:
                 source_stopped = True
                 pipeline.stop()
@@ -298,7 +325,7 @@ class Service:
             try:  # what ran before, as it ran: the monitor's settings (its alarm state carries over), delivery, source
                 self.config = old
                 pipeline.with_monitor(lambda m: m.reconfigure(old_settings))
-                self.delivery.apply(old)
+                self.delivery.apply(old, changed)
                 if source_stopped:
                     pipeline = self._start_pipeline(monitor)
             except Exception as restore_exc:
@@ -311,12 +338,13 @@ class Service:
             self._apply_recorder(pipeline, monitor, new)
         except Exception as exc:  # noqa: BLE001 - recordings are a nicety: the new config runs without the change
             self._log.error("recorder not reconfigured, the running one goes on", error=f"{type(exc).__name__}: {exc}")
-        if new.state != old.state:
+        self.snapshot = snapshot
+        if "state" in changed:
             self._log.warning("state.directory changes take effect at the next start", kept=str(old.state.directory))
         # Said when the windows restart (the processing, the sensors or the source changed): the next
         # judged window is then a whole window of data away.
         windows_restart = bool(restarted and restarted[0]) or restart_source
-        self._log.info("reloaded", config_hash=new.digest(), windows_restart=windows_restart)
+        self._log.info("reloaded", config_hash=new.digest(), files_hash=snapshot.digest, changed=sorted(changed), windows_restart=windows_restart)
         self._warn_if_not_commissioned(new)
         restart_text = f": the windows restart, the next is judged {new.processing.window_s:g} s of data from now"
         self.notifier.ready(status="reloaded" + (restart_text if windows_restart else ""))

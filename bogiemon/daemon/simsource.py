@@ -68,6 +68,9 @@ class SimulatedSource(Source):
     def last_error(self) -> str | None:  # type: ignore[override]
         return self._reader.last_error
 
+    def behind_s(self) -> float:
+        return self._reader.behind_s()
+
     def read(self, timeout_s: float) -> Block | None:
         sent_all = not self._player.is_alive()  # checked first: nothing can arrive after it
         block = self._reader.read(timeout_s)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from typing import Any
 
+from bogiemon.daemon.event_json import event_body
 from bogiemon.judgement.events import Event
 from bogiemon.daemon.logs import get_logger
 
@@ -28,7 +29,7 @@ class LogSink(EventSink):
         self._log = logger if logger is not None else get_logger(component="events")
 
     def publish(self, event: Event) -> None:
-        body = event.as_dict()
+        body = event_body(event)
         message = body.pop("kind")
         getattr(self._log, event.severity.log_level)(message, **body)
 

@@ -1,4 +1,5 @@
-"""The source the config asks for: `open_source(config)` builds the driver from [source].
+"""The source the config asks for: `open_source(config)` builds the driver from [source];
+`open_service_source(config)` reads it on the [duty] cycle (daemon/duty.py), as `run` does.
 
 The drivers take plain arguments; this is the one place that reads their settings from the
 config tree (drivers/ never imports daemon/). Each [source] kind (a model of daemon/config.py)
@@ -10,9 +11,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bogiemon.daemon.analysis import recording_settings
 from bogiemon.daemon.config import (
     BogiemonConfig,
     CanSourceConfig,
@@ -20,18 +20,40 @@ from bogiemon.daemon.config import (
     SerialSourceConfig,
     SimulatedSourceConfig,
 )
+from bogiemon.detection import ProcessingSettings
 from bogiemon.drivers.base import Source
-from bogiemon.drivers.can_source import CanBusPort, CanSource
-from bogiemon.drivers.candb import load_layout
-from bogiemon.drivers.recording import RecordingError, is_sample_recording_name
-from bogiemon.drivers.replay import open_replay
+from bogiemon.drivers.recording import RecordingError
+from bogiemon.drivers.replay import RecordingReplaySource, open_replay
 from bogiemon.drivers.serial_source import SerialSource
+
+def recording_settings(path: str | Path, fs_hz: float, config: BogiemonConfig) -> ProcessingSettings:
+    """The detection core's settings at a recording's own rate.
+
+    RecordingError, naming the file, its rate and what of [processing] does not fit, where the
+    core cannot run the config at that rate (a 10 Hz recording and the 10 Hz low-pass, windows
+    that are no whole number of hops at 333.33 Hz, a rate of 0.01 Hz).
+    """
+    try:
+        return config.processing_settings(fs_hz=fs_hz)
+    except ValueError as exc:  # ConfigError, or the core's own check (ProcessingSettings)
+        raise RecordingError(
+            f"{path}: recorded at {fs_hz:.6g} Hz, a rate the config's [processing] cannot run at: {exc}; "
+            f"resample the recording, or use a config whose [processing] suits {fs_hz:.6g} Hz"
+        ) from None
+
+
+if TYPE_CHECKING:  # cantools and python-can load with a CAN source or log only
+    from bogiemon.drivers.candb import CanLayout
+
 
 # An opener takes its own [source] model (the first argument) and the whole config.
 Opener = Callable[[Any, BogiemonConfig], Source]
 
 
 def _open_can(src: CanSourceConfig, config: BogiemonConfig) -> Source:
+    from bogiemon.drivers.can_source import CanBusPort, CanSource  # python-can, for a CAN source only
+    from bogiemon.drivers.candb import load_layout
+
     return CanSource(
         CanBusPort(src.interface, src.channel, src.receive_buffer_bytes),
         load_layout(src.dbc_path or None, src.layout),
@@ -60,12 +82,16 @@ def _open_simulated(src: SimulatedSourceConfig, config: BogiemonConfig) -> Sourc
 
 
 def _open_replay(src: ReplaySourceConfig, config: BogiemonConfig) -> Source:
-    is_csv = is_sample_recording_name(src.path)
-    layout = None if is_csv else load_layout(src.dbc_path or None, src.layout)
+    def layout() -> CanLayout:  # read only for a CAN log
+        from bogiemon.drivers.candb import load_layout
+
+        return load_layout(src.dbc_path or None, src.layout)
+
     source = open_replay(
-        src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s
-    )
-    if is_csv:  # a CSV brings its own rate: one the config cannot run at is refused here, in one line
+        src.path, rate=1.0 if src.realtime else 0.0, layout=layout, fs_hz=config.processing.fs_hz, max_block_s=src.max_block_s,
+        columns=src.column_map(),
+    )  # fmt: skip
+    if isinstance(source, RecordingReplaySource):  # a recording brings its own rate: one the config cannot run at is refused here, in one line
         try:
             recording_settings(src.path, source.fs_hz, config)
         except RecordingError:
@@ -90,6 +116,8 @@ def replay_source_config(path: str | Path, config: BogiemonConfig, realtime: boo
     settings: dict[str, Any] = {"max_block_s": src.max_block_s if max_block_s is None else max_block_s}
     if isinstance(src, CanSourceConfig | ReplaySourceConfig | SimulatedSourceConfig):
         settings.update(layout=src.layout, dbc_path=src.dbc_path)
+    if isinstance(src, ReplaySourceConfig):
+        settings.update(unit=src.unit, columns=src.columns)
     return ReplaySourceConfig(kind="replay", path=str(path), realtime=realtime, **settings)
 
 
@@ -109,3 +137,18 @@ def open_source(config: BogiemonConfig) -> Source:
     if opener is None:  # the config accepted a kind this table lacks: a bug, not a user error
         raise TypeError(f"[source] kind {getattr(src, 'kind', '?')!r} ({type(src).__name__}) has no opener in daemon/sources.py OPENERS")
     return opener(src, config)
+
+
+def duty_cycled(source: Source, config: BogiemonConfig) -> Source:
+    """source read on the config's [duty] cycle (daemon/duty.py); source itself when [duty] is off."""
+    settings = config.duty_settings()
+    if settings is None:
+        return source
+    from bogiemon.daemon.duty import DutySource  # only with a duty cycle
+
+    return DutySource(source, settings)
+
+
+def open_service_source(config: BogiemonConfig) -> Source:
+    """What `bogiemon run` reads: the configured source (open_source), on the [duty] cycle."""
+    return duty_cycled(open_source(config), config)

@@ -20,6 +20,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from bogiemon.daemon.event_json import event_body, event_from_body
 from bogiemon.judgement.events import Event
 from bogiemon.daemon.outbox import Outbox
 from bogiemon.daemon.store_file import DB_NAME, StoreError, StoreFile, StoreWriteError, transaction
@@ -60,7 +61,7 @@ class EventStore:
         with self.write() as db:
             db.executemany(
                 "INSERT INTO events (event_id, time_s, kind, severity, config_hash, body) VALUES (?, ?, ?, ?, ?, ?)",
-                [(e.event_id, e.time_s, e.kind.value, e.severity.value, e.config_hash, json.dumps(e.as_dict())) for e in events],
+                [(e.event_id, e.time_s, e.kind.value, e.severity.value, e.config_hash, json.dumps(event_body(e))) for e in events],
             )
             for key, value in (state or {}).items():
                 db.execute("INSERT OR REPLACE INTO state (key, value) VALUES (?, ?)", (key, json.dumps(value)))
@@ -101,7 +102,7 @@ class EventStore:
     def decode(self, seq: int, body: str) -> Event:
         """One stored event; a row that passed quick_check but does not decode is damage, named by its seq."""
         try:
-            return Event.from_dict(json.loads(body))
+            return event_from_body(json.loads(body))
         except (ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
             raise StoreError(self._file.damaged(f"event {seq} does not decode: {exc!r}")) from None
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import shutil
 import sqlite3
 import tempfile
@@ -21,9 +22,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from bogiemon.drivers.atomic import fsync_path
+from bogiemon.drivers.quoting import quoted
 
 DB_NAME = "events.sqlite3"
-SCHEMA_VERSION = 2
+# A store being created (_create): tempfile.mkstemp's 8 characters between the prefix and the suffix,
+# and the journal files SQLite may leave beside it. Named so that a start can tell it is bogiemon's.
+STORE_TEMPORARY = re.compile(rf"\.{re.escape(DB_NAME)}\.[a-z0-9_]{{8}}\.new(?:-wal|-shm|-journal)?")
+SCHEMA_VERSION = 3
 # Below this much free space a failing open or commit is named a full file system: a commit of
 # one window's events and state writes a few pages to the WAL, and its index grows in 32 KiB steps.
 LOW_SPACE_BYTES = 256 * 1024
@@ -52,6 +57,11 @@ _MIGRATIONS: dict[int, tuple[str, ...]] = {
         # Status records wait here until delivered (then deleted) or dropped by the bound.
         "CREATE TABLE status_outbox (seq INTEGER PRIMARY KEY AUTOINCREMENT, time_s REAL NOT NULL, body TEXT NOT NULL)",
     ),
+    # The event bodies written from here on count k of n as {"k": 3, "n": 5} (bogiemon.event/2):
+    # no statement, the version alone, so that a bogiemon before it refuses the file rather than
+    # send those bodies as bogiemon.event/1. The rows of versions 1 and 2 stay as they were written
+    # ("3 of 5"); daemon/event_json.py reads both.
+    3: (),
 }
 
 
@@ -192,7 +202,7 @@ class StoreFile:
         return db
 
     def damaged(self, detail: str) -> str:
-        detail = " ".join(detail.split())  # quick_check reports one problem per line: the error is one line
+        detail = quoted(" ".join(detail.split()), 300)  # quick_check reports one problem per line, which may quote the file
         return (
             f"{self.path}: the event store is damaged ({detail}); bogiemon leaves it untouched: move it aside "
             f"(mv {self.path} {self.path}.damaged, with its -wal and -shm files), then start again for a new store "

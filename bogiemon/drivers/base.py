@@ -48,7 +48,10 @@ class Block:
     accel_mps2: (n, 3) float64, columns a1, a2, a3 (specific force, gravity included or not);
     gap_before: samples were lost, or the stream (re)started, before this block: anything
       computed across this boundary must be discarded, never bridged;
-    status: per sensor, the status bits seen in this block.
+    status: per sensor, the status bits seen in this block;
+    new_stream: the block begins another stream on purpose (a duty cycle's measurement after a
+      rest, daemon/duty.py): a new segment, as after gap_before, but no loss that the dropouts
+      check counts.
     """
 
     start_s: float
@@ -56,6 +59,7 @@ class Block:
     accel_mps2: NDArray[np.float64]
     gap_before: bool = False
     status: tuple[SensorStatus, SensorStatus, SensorStatus] = ALL_OK
+    new_stream: bool = False
 
     def __post_init__(self) -> None:
         if self.accel_mps2.ndim != 2 or self.accel_mps2.shape[1] != 3:
@@ -114,6 +118,8 @@ class Source(ABC):
     # A recording (ends with EndOfStream; the reader may wait for downstream rather than drop)
     # or a live stream (never waits: samples not taken in time are lost on the bus).
     finite: bool = False
+    # At rest on purpose (a duty cycle, daemon/duty.py): it delivers nothing and is not stalled.
+    resting: bool = False
 
     @abstractmethod
     def read(self, timeout_s: float) -> Block | None:
@@ -123,8 +129,17 @@ class Source(ABC):
         for what the bus or the cable does: it counts it, reconnects, and reports a gap.
         """
 
+    def behind_s(self) -> float:
+        """How far a live source is behind real time: the seconds of samples it has received and
+        not handed on, beyond the block it is filling (0 for a recording: it has no real time)."""
+        return 0.0
+
     def close(self) -> None:  # noqa: B027 - optional for sources that hold nothing
         """Release the device or file."""
+
+    def pause(self) -> None:  # noqa: B027 - a source that holds no device has nothing to release
+        """Release the device for a while (a duty cycle's rest, daemon/duty.py); the next read takes
+        it up again, as at the start: a new segment, and no loss or reconnection counted."""
 
     def __enter__(self) -> Self:
         return self

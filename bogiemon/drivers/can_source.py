@@ -10,7 +10,8 @@ other place where the kinds differ: a bus with a socket (SocketCAN) is read in b
 frame queued on the socket in one recvmmsg(2) parsed with numpy, because python-can's SocketCAN
 receive costs a select, a recvmsg and a Message per frame (it has no batch receive; Python's
 socket module has no recvmmsg) and that was most of the reader's CPU; the virtual bus, an
-in-process queue of Messages, is read through python-can's recv. Past the reader, frames are
+in-process queue of Messages, has its queue taken whole (can_frames.QueueFrameReader), and any
+other python-can bus is read through its recv. Past the reader, frames are
 the columns of a FrameBatch and everything is the same code. The socket reader is tested on this
 kernel's datagram sockets carrying the same struct can_frame bytes, against python-can's own
 parsing (tests/drivers/test_can_frames.py), as AF_CAN cannot be created here.
@@ -19,10 +20,10 @@ read(timeout_s) gathers frames for up to timeout_s, decodes them in one batch an
 samples received since the last call: a Block as soon as max_block_s of samples are in or a
 segment ends, else at timeout_s whatever arrived (None if nothing did). While a block fills, the
 reader does not wake for every frame: once the bus's queue is drained it sleeps coalesce_s (by
-default the time 100 frames take, at most 50 ms: 50 ms for either layout at 500 Hz) and then
-takes everything that arrived meanwhile, the frames keeping their receive times. At 500 Hz that
-is 20 wake-ups a second instead of 500 or 2000 (`make bench-drivers`); a block's last sample
-waits at most coalesce_s longer.
+default the time 100 frames take, at most 0.2 s: 0.2 s for the hub, 50 ms per node at 500 Hz)
+and then takes everything that arrived meanwhile, the frames keeping their receive times. At
+500 Hz that is 5 or 20 wake-ups a second instead of 500 or 2000 (`make bench-drivers`); a
+block's last sample waits at most coalesce_s longer.
 
 The read loop, the counting and the reconnection are drivers/live.py's: when the bus fails (an
 interface unplugged or deleted, a closed channel) the source counts it, closes the bus, and
@@ -31,6 +32,7 @@ reopens it with exponential backoff on later calls; the next samples start a new
 
 from __future__ import annotations
 
+import queue
 import socket
 import struct
 import time
@@ -40,7 +42,7 @@ from collections.abc import Callable
 import can
 
 from bogiemon.drivers.can_decode import CanFrameDecoder
-from bogiemon.drivers.can_frames import BusFrameReader, FrameReader, SocketFrameReader
+from bogiemon.drivers.can_frames import BusFrameReader, FrameReader, QueueFrameReader, SocketFrameReader
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import BusRole, bus_kind, open_bus
 from bogiemon.drivers.live import LiveSource
@@ -51,13 +53,15 @@ SO_RCVBUFFORCE = 33
 SO_MEMINFO = 55
 SK_MEMINFO_DROPS = 8  # index in the u32 array SO_MEMINFO returns (Linux >= 4.6)
 # How long the reader lets frames accumulate once the bus queue is drained, by default: the
-# time COALESCE_FRAMES take to arrive, at most MAX_COALESCE_S (50 ms for either layout at
-# 500 Hz). Each wake-up costs a sleep and a system call whatever it brings: per node, 12.5 ms
-# (25 frames) cost a third more CPU than 50 ms (bench/bench_drivers.py). The socket's receive
-# buffer must hold them meanwhile: the few hundred frames it holds even where net.core.rmem_max
-# is left at its default (docs/drivers.md) are several times 100.
+# time COALESCE_FRAMES take to arrive, at most MAX_COALESCE_S (0.2 s for the hub at 500 Hz, 50 ms
+# per node). Each wake-up costs a sleep, a system call and a hand-over of the interpreter lock
+# whatever it brings: per node, 12.5 ms (25 frames) cost a third more CPU than 50 ms
+# (bench/bench_drivers.py), and the hub's 20 wake-ups a second at the earlier cap of 50 ms were
+# a tenth of the daemon's CPU. The socket's receive buffer must hold them meanwhile: the few
+# hundred frames it holds even where net.core.rmem_max is left at its default (docs/drivers.md)
+# are several times 100. A window's verdict waits for its last block: 0.2 s on a 10 s hop.
 COALESCE_FRAMES = 100
-MAX_COALESCE_S = 0.05
+MAX_COALESCE_S = 0.2
 # The most frames gathered before they are decoded: a block's worth up to this many (recvmmsg
 # takes at most 1024 messages a call, UIO_MAXIOV), so that a reader's buffers stay small (128
 # bytes a frame) whatever max_block_s and fs_hz are; a larger block is gathered in several.
@@ -92,7 +96,7 @@ class CanBusPort(BusPort):
     CAP_NET_ADMIN) sets it past net.core.rmem_max; without the capability SO_RCVBUF is capped
     there. effective_receive_buffer_bytes is what the kernel granted (None: no socket, or
     receive_buffer_bytes None leaves the kernel's default). The kernel's drop count is read from
-    the same socket. A virtual bus has none of these: python-can's recv reads it.
+    the same socket. A virtual bus has none of these: its queue of Messages is taken whole.
     """
 
     def __init__(self, kind: str, channel: str, receive_buffer_bytes: int | None = None) -> None:
@@ -111,7 +115,11 @@ class CanBusPort(BusPort):
 
     def frame_reader(self, bus: can.BusABC, capacity: int) -> FrameReader:
         sock = getattr(bus, "socket", None)
-        return SocketFrameReader(sock, capacity) if isinstance(sock, socket.socket) else BusFrameReader(bus)
+        if isinstance(sock, socket.socket):
+            return SocketFrameReader(sock, capacity)
+        if isinstance(getattr(bus, "queue", None), queue.Queue) and bus.filters is None:
+            return QueueFrameReader(bus)  # python-can's virtual bus: its queue taken whole
+        return BusFrameReader(bus)
 
     def dropped_frames(self, bus: can.BusABC) -> int | None:
         sock = getattr(bus, "socket", None)

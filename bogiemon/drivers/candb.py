@@ -22,6 +22,8 @@ import cantools
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.drivers.quoting import quoted
+
 SHIPPED_DBC_NAME = "bogiemon.dbc"
 LayoutName = Literal["hub", "per-node"]
 LAYOUTS: tuple[LayoutName, ...] = ("hub", "per-node")
@@ -212,7 +214,7 @@ def load_layout(dbc_path: str | Path | None, layout: str) -> CanLayout:
     try:
         db = cantools.database.load_string(text, database_format="dbc")
     except Exception as exc:  # cantools raises parser-specific errors; all mean a bad file
-        raise DbcError(f"{source}: not a valid DBC file: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        raise DbcError(f"{source}: not a valid DBC file: {quoted(str(exc).splitlines()[0], 200) if str(exc) else type(exc).__name__}") from None
     assert isinstance(db, cantools.database.can.Database)  # what a DBC always loads as
     by_name = {m.name: m for m in db.messages}
     all_keys = {m.frame_id | (CAN_EFF_KEY if m.is_extended_frame else 0) for m in db.messages}

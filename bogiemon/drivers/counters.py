@@ -30,6 +30,8 @@ COUNTERS: dict[str, str] = {
     # Replays and recordings.
     "unreadable_entries": "log entries python-can could not parse (also bad_frames)",
     "clipped_samples": "samples beyond the converter's range, clipped to its full scale",
+    "resampled_samples": "samples of a recording with jittered time stamps, interpolated onto its nominal grid",
+    "recording_gaps": "gaps in a recording's time stamps (samples missing): a new segment starts after each",
 }
 
 

@@ -21,8 +21,15 @@ The API, for any reader of outside files (fleet/ included):
     open_untrusted(path, kind, error=RecordingError) -> UntrustedFile   # a binary stream
     read_untrusted(path, kind, error=ConfigError) -> bytes              # a whole small file
     UntrustedFile.lines() -> (number, bytes) ...; .text_lines() -> TextLines (for python-can)
+    UntrustedFile.reopen() -> UntrustedFile     # the same file from its start, not by its name
+    UntrustedFile.head(n) -> bytes              # its first n bytes (decompressed), for sniffing
+    UntrustedFile.proc_path -> "/proc/self/fd/N" # for a library that insists on a name
+    one_line(text) -> str                       # file-supplied text, escaped, for a message
 
 An UntrustedFile that is not compressed is seekable: pyarrow.parquet.ParquetFile(f) reads one.
+A reader that passes over a file twice, or hands it to a library that opens files by name, never
+opens the name again (another file may have taken it meanwhile): reopen() and proc_path go
+through the descriptor that was checked, to the same inode.
 
 `error` is the caller's own user-error class (ConfigError, RecordingError, ...), raised with a
 message `"<path>: <what is wrong>; <what to do>"`, so each caller keeps catching what it caught.
@@ -41,6 +48,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, NoReturn, overload
+
+from bogiemon.drivers.quoting import quoted
 
 GZIP_MAGIC = b"\x1f\x8b"
 # A compressed file may always decompress to this much, whatever its ratio: a small file of a
@@ -76,6 +85,11 @@ class FileKind:
     max_inflated_bytes: int = 0
     max_inflate_ratio: float = 0.0
     max_line_bytes: int = 1 << 20
+
+
+def one_line(text: str | bytes, limit: int = 80) -> str:
+    """Text from a file as a message quotes it (drivers/quoting.py), cut to 80 characters by default."""
+    return quoted(text, limit)
 
 
 def size_text(n_bytes: int) -> str:
@@ -132,6 +146,43 @@ class UntrustedFile(io.RawIOBase):
 
     def fileno(self) -> int:
         return self._raw.fileno()
+
+    @property
+    def proc_path(self) -> str:
+        """A name of the checked descriptor's file, for a library that only opens names: the
+        same inode whatever has happened to the name since."""
+        return f"/proc/self/fd/{self.fileno()}"
+
+    def reopen(self, kind: FileKind | None = None) -> UntrustedFile:
+        """The same file from its start, as a stream of its own (its own offset and gzip state),
+        through the checked descriptor: never the name again; with another kind's bounds where
+        one is given (a file sniffed as one kind, read as another)."""
+        kind = kind or self.kind
+        try:
+            fd = os.open(self.proc_path, os.O_RDONLY | os.O_CLOEXEC)
+        except OSError as exc:
+            self.refuse(f"cannot read the {self.kind.name} again: {exc.strerror or exc}")
+        before, after = os.fstat(self.fileno()), os.fstat(fd)
+        if (before.st_dev, before.st_ino) != (after.st_dev, after.st_ino):  # pragma: no cover - the kernel's promise
+            os.close(fd)
+            self.refuse(f"the {self.kind.name} changed under its descriptor")
+        if self.size_bytes > kind.max_bytes:
+            os.close(fd)
+            self.refuse(f"larger than {size_text(kind.max_bytes)}; {kind.too_large}")
+        compressed = self.compressed and kind.gzip
+        return UntrustedFile(self.path, kind, self.error, fd, self.size_bytes, compressed)
+
+    def head(self, n_bytes: int) -> bytes:
+        """The first n_bytes of the file (decompressed if it is compressed), read from a stream of
+        its own: this one's position is not moved. A damaged or cut gzip stream gives what it has."""
+        if not self.compressed:
+            return os.pread(self.fileno(), n_bytes, 0)
+        with self.reopen() as f:
+            assert f._gzip is not None
+            try:
+                return f._gzip.read(n_bytes)
+            except (*_GZIP_ERRORS, OSError):
+                return b""
 
     def read(self, size: int | None = -1) -> bytes:
         """At most size bytes (all there are: -1 or None), within the bounds."""

@@ -5,10 +5,15 @@ adapter pulled). LiveSource owns what every such source does the same way, as py
 `BusABC.recv` owns the receive loop around each interface's `_recv_internal`: read(timeout_s)
 gathers samples until a block is ready or the time is up; a device that fails is counted, closed
 and reopened with the one backoff (drivers/reconnect.py) on later reads; a device missing at
-start is retried the same way; `last_error` names the device and the reason in one line. A
+start is retried the same way; `last_error` names the device and the reason in one line.
+A block already queued goes out at once, never after a wait on the device: a burst of errors
+splits the stream into many short segments, and were each handed on only at a read's timeout the
+source would fall behind real time and stay there. So it holds at most a block being filled and
+one read's worth, and is back at real time as soon as the pipeline has taken what the device
+buffered meanwhile; `behind_s()` says how far behind it is (the pipeline logs it). A
 subclass writes only its hooks: `_open` (a new device), `_receive` (read what the device has for
-up to the time given, into the sample queue), `_close`, and `_restart` (its decoding state,
-when the stream restarts).
+up to the time given, into the sample queue), `_close`, `_restart` (its decoding state,
+when the stream restarts) and `_unread_n` (what the device holds unread, if it can tell).
 """
 
 from __future__ import annotations
@@ -84,6 +89,10 @@ class LiveSource(Source, Generic[DeviceT]):
     def _restart(self) -> None:  # noqa: B027 - a source with no decoding state has nothing to reset
         """The stream starts again (the device was opened or lost): reset the decoding state."""
 
+    def _unread_n(self, device: DeviceT) -> int:
+        """Samples the device has received and not yet given us, where it can tell (else 0)."""
+        return 0
+
     # ---- the loop -------------------------------------------------------------------------
 
     @property
@@ -114,8 +123,22 @@ class LiveSource(Source, Generic[DeviceT]):
             self.counters.timeouts += 1
         return block
 
+    def behind_s(self) -> float:
+        # Blocks go out as soon as one is ready (read() never waits on the device while one is
+        # queued), so what is held beyond one block is what the pipeline has yet to take.
+        held_n = self._queue.n_pending + (self._unread_n(self._device) if self._device is not None else 0)
+        return max(0, held_n - self.max_block_n) / self.fs_hz
+
     def close(self) -> None:
         self._close_device()
+
+    def pause(self) -> None:
+        """Close the device on purpose (Source.pause): the samples not handed out yet are dropped,
+        and the next read opens it again as the first did (no disconnect, reconnect or gap counted)."""
+        self._close_device()
+        self._restart()
+        self._queue.discard()
+        self._opened_before = False
 
     # ---- the open/lose/close cycle ---------------------------------------------------------
 

@@ -173,8 +173,8 @@ def open_player_bus(interface: str, channel: str, stamped: bool = False) -> can.
     except OSError as exc:
         if exc.errno == errno.EAFNOSUPPORT:
             raise PlayError(
-                f"CAN interface '{channel}': this kernel has no SocketCAN (AF_CAN); "
-                "use --interface virtual, or a Linux kernel with the can and vcan modules"
+                f"CAN interface '{channel}': this kernel has no SocketCAN (AF_CAN): use a Linux kernel with the can and "
+                "vcan modules (`modprobe vcan`), or make a CAN log without a bus: `bogiemon convert FILE -o run.log`"
             ) from None
         if exc.errno == errno.ENODEV:
             raise PlayError(
@@ -182,6 +182,36 @@ def open_player_bus(interface: str, channel: str, stamped: bool = False) -> can.
                 f"`ip link add dev {channel} type vcan && ip link set {channel} up` (docs/drivers.md)"
             ) from None
         raise PlayError(f"CAN interface '{channel}': {exc.strerror or exc}") from None
+
+
+@dataclass(frozen=True)
+class PlayedSamples:
+    """A file's samples as the player sends them: uniform at fs_hz, its gaps closed up (counted)."""
+
+    accel_mps2: NDArray[np.float64]
+    fs_hz: float
+    gaps: int
+
+
+def read_samples(path: str | Path, layout: CanLayout, fs_hz: float) -> PlayedSamples:
+    """Every sample of a recording or a CAN log (decoded with layout at fs_hz), in memory."""
+    from bogiemon.drivers.base import EndOfStream
+    from bogiemon.drivers.replay import open_replay
+
+    source = open_replay(path, rate=0, layout=layout, fs_hz=fs_hz, max_block_s=10.0)
+    blocks = []
+    try:
+        while True:
+            block = source.read(1.0)
+            if block is not None and block.n_samples:
+                blocks.append(block)
+    except EndOfStream:
+        pass
+    finally:
+        source.close()
+    if not blocks:
+        raise PlayError(f"{path}: no samples to play (for a CAN log: are --dbc and --layout those it was recorded with?)")
+    return PlayedSamples(np.concatenate([b.accel_mps2 for b in blocks]), blocks[0].fs_hz, sum(b.gap_before for b in blocks[1:]))
 
 
 def write_can_log(
@@ -192,14 +222,15 @@ def write_can_log(
     start_s: float,
     channel: str = "can0",
 ) -> int:
-    """Write a recording as a CAN log python-can reads back (.log as candump -L, .asc, .blf); returns frames.
+    """Write a recording as a CAN log python-can reads back (.log as candump -L, .asc, .blf, .trc,
+    python-can's .csv and .db, .mf4 with asammdf); returns frames.
 
-    channel names the interface in a .log (what canplayer sends on); .asc and .blf number channels.
+    channel names the interface in a .log (what canplayer sends on); the others number channels.
     """
     n = 0
     with can.Logger(str(path)) as writer:  # dispatches on the suffix; reads no config
         for _, message in iter_messages(layout, accel_mps2, fs_hz, start_s=start_s):
-            message.channel = channel if str(path).endswith(".log") else 0
+            message.channel = channel if str(path).endswith(".log") else 0 if not str(path).endswith(".trc") else 1
             writer.on_message_received(message)
             n += 1
     return n

@@ -1,13 +1,21 @@
-"""The reading of a recording whatever its format: RecordingReader, the base of the CSV and the
-Parquet readers (the survey's checks of the whole file, the chunks, the whole recording in memory),
-and the checks of every row in file order (NaN, a time not plausible, not increasing or off the
-file's step; a sample beyond the converter's range clipped and counted)."""
+"""The reading of a recording whatever its format: RecordingReader, the base of the CSV, Parquet and
+MF4 readers (the survey's checks of the whole file, its nominal rate and the unit its levels say,
+the chunks, the whole recording in memory), and the checks of every row in file order (NaN, a time
+not plausible or not increasing; a sample beyond the converter's range clipped and counted).
+
+Time stamps as loggers write them: a step within TIME_STEP_TOLERANCE of the file's step is the
+step (times printed to a few decimals); within JITTER_TOLERANCE it is jitter, and the segment's
+samples are interpolated onto its nominal grid (counted: resampled_samples); longer is a gap,
+where a new segment starts (a chunk never spans one; the reader lists them); shorter is a row
+off the rate, an error naming it. The nominal rate is the whole file's where its steps agree with
+it, else that of the first stretch without a gap (snapped to a whole hertz within 0.05 %)."""
 
 from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Generator, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
 
@@ -15,11 +23,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bogiemon.drivers.base import MAX_TIME_S
-from bogiemon.drivers.recording_format import MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
+from bogiemon.drivers.columns import ColumnMap, nominal_rate_hz, unit_problem
+from bogiemon.drivers.files import UntrustedFile
+from bogiemon.drivers.recording_format import JITTER_TOLERANCE, MAX_ACCEL_MPS2, MIN_ACCEL_MPS2, Recording, RecordingError
 
-# A time step may deviate this much (relative) from the file's step: enough for times printed
-# with 6 decimals at 1 kHz, far less than the 100 % of one lost sample.
+# A time step may deviate this much (relative) from the file's step and be taken as it is: enough
+# for times printed with 6 decimals at 1 kHz.
 TIME_STEP_TOLERANCE = 0.01
+# The gaps a reader lists for its summary (all are counted).
+MAX_LISTED_GAPS = 100
 # The file's step is the median of its first steps (of all of them in a file this short): a
 # streaming reader cannot wait for the whole file's median before it checks the first rows.
 REFERENCE_STEPS = 4096
@@ -34,14 +46,27 @@ class RecordingReader(ABC):
     """
 
     path: Path
+    file: UntrustedFile  # the checked descriptor: every pass reads through it, never the name
     format: str  # "csv" or "parquet"
     n_samples: int
     start_s: float  # the time of the first sample
     last_s: float  # the time of the last sample
     fs_hz: float
 
-    def __init__(self) -> None:
+    def __init__(self, file: UntrustedFile, columns: ColumnMap | None = None) -> None:
+        self.file = file
+        self.path = file.path
+        self.columns = columns or ColumnMap()
+        self.time_to_s = 1.0  # the time column's unit in seconds (its reader's open sets it)
         self.clipped_samples = 0  # of the last pass of chunks(), so far
+        self.resampled_samples = 0  # of the last pass: samples interpolated onto the grid
+        self.max_jitter_s = 0.0  # of the last pass: the largest deviation of a step from the grid's
+        self.gaps: list[Gap] = []  # of the last pass, the first MAX_LISTED_GAPS
+        self.gap_count = 0
+
+    def close(self) -> None:
+        """Release the file (a pass still reading holds a descriptor of its own until it ends)."""
+        self.file.close()
 
     @property
     def duration_s(self) -> float:
@@ -55,6 +80,19 @@ class RecordingReader(ABC):
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """The file's rows as arrays, unchecked, in order; RecordingError for what cannot be parsed."""
 
+    def _mapped_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        """_raw_chunks in seconds and m/s^2: the time column's unit, each channel's gain and
+        offset and the file's unit applied (the default mapping passes the file's arrays)."""
+        time_to_s = self.time_to_s
+        raw = self._raw_chunks()
+        try:
+            for time_s, values in raw:
+                yield (time_s * time_to_s if time_to_s != 1.0 else time_s), self.columns.to_mps2(values)
+        finally:
+            close = getattr(raw, "close", None)
+            if close is not None:
+                close()  # the file's pass ends with this one's, also at a bad row
+
     @abstractmethod
     def where(self, row: int) -> str:
         """Where data row `row` (from 0) is in the file, for a message: 'line 1873', 'row 1872'."""
@@ -66,9 +104,13 @@ class RecordingReader(ABC):
         raise RecordingError(f"{self.path}: {self.where(row)}: {problem}")
 
     def chunks(self) -> Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None]:
+        """(time_s (m,), accel_mps2 (m, 3)) in order, checked; a chunk never spans a gap (its times
+        jump from the last chunk's: a new segment)."""
         checker = _RowChecker(self)
-        self.clipped_samples = 0
-        yield from checker.checked(self._raw_chunks())
+        self.clipped_samples = self.resampled_samples = self.gap_count = 0
+        self.max_jitter_s = 0.0
+        self.gaps = []
+        yield from checker.checked(self._mapped_chunks())
         if checker.rows != self.n_samples or checker.last_s != self.last_s:
             self.error(
                 f"changed while it was read ({checker.rows} rows, not {self.n_samples}): is a logger still writing it? "
@@ -87,6 +129,7 @@ class RecordingReader(ABC):
             accel_mps2=np.ascontiguousarray(np.concatenate(accels)),
             fs_hz=self.fs_hz,
             clipped_samples=self.clipped_samples,
+            resampled_samples=self.resampled_samples,
         )
 
     # -- what the open checks ----------------------------------------------------------------------
@@ -103,13 +146,14 @@ class RecordingReader(ABC):
             fs_hz = float((n - 1) / (np.float64(last_s) - np.float64(first_s))) if n >= 2 and None not in (first_s, last_s) else math.nan
         usable = n >= 2 and math.isfinite(fs_hz) and fs_hz > 0
         if usable and n >= min_samples:
-            self.start_s, self.last_s, self.fs_hz = float(first_s), float(last_s), fs_hz  # type: ignore[arg-type]
+            self.start_s, self.last_s = float(first_s), float(last_s)  # type: ignore[arg-type]
+            self.fs_hz = self._nominal_rate(fs_hz)
             return
         # The rows are read through for a bad one; the survey's own values do not judge them.
         self.start_s = self.last_s = math.nan
         self.fs_hz = fs_hz
         checker = _RowChecker(self)
-        for _ in checker.checked(self._raw_chunks()):
+        for _ in checker.checked(self._mapped_chunks()):
             pass
         if checker.rows == 0:
             self.error("holds no samples after the header" if self.format == "csv" else "holds no samples")
@@ -124,10 +168,58 @@ class RecordingReader(ABC):
             f"({min_samples} samples, {min_samples / fs_hz:.1f} s): use a longer recording or a shorter window_s"
         )
 
+    def _head(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The file's first rows (up to REFERENCE_STEPS + 1), unchecked."""
+        times, accels, n = [], [], 0
+        raw = self._mapped_chunks()
+        try:
+            for time_s, accel_mps2 in raw:
+                times.append(time_s)
+                accels.append(accel_mps2)
+                n += time_s.shape[0]
+                if n > REFERENCE_STEPS:
+                    break
+        except RecordingError:
+            pass  # a bad row among the first: named when the reading reaches it
+        finally:
+            close = getattr(raw, "close", None)
+            if close is not None:
+                close()
+        if not times:
+            return np.empty(0), np.empty((0, 3))
+        return np.concatenate(times)[: REFERENCE_STEPS + 1], np.concatenate(accels)[: REFERENCE_STEPS + 1]
+
+    def _nominal_rate(self, whole_fs_hz: float) -> float:
+        """The file's rate: the whole file's (first to last time) where its first steps agree with
+        it; else the first stretch's without a gap. Refuses a file whose levels say another unit."""
+        head_t, head_a = self._head()
+        problem = unit_problem(head_a, self.columns.unit)
+        if problem is not None:
+            self.error(problem)
+        with np.errstate(invalid="ignore"):
+            steps = np.diff(head_t)
+            steps = steps[np.isfinite(steps) & (steps > 0)]
+        if steps.size == 0:
+            return nominal_rate_hz(1.0 / whole_fs_hz)
+        reference = _median(steps)
+        if abs(1.0 / whole_fs_hz - reference) <= TIME_STEP_TOLERANCE * reference:
+            return nominal_rate_hz(1.0 / whole_fs_hz)
+        off = np.flatnonzero(np.abs(steps - reference) > JITTER_TOLERANCE * reference)
+        run = steps[: off[0]] if off.size else steps
+        return nominal_rate_hz(float(run.mean()) if run.size else reference)
+
     def require_samples(self, min_samples: int) -> None:
         """Refuse a recording shorter than min_samples (e.g. one analysis window), after naming a bad row."""
         if self.n_samples < min_samples:
             self._check_whole(min_samples, self.start_s, self.last_s)
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Samples missing in a recording: after the sample at after_s, none for missing_s."""
+
+    after_s: float
+    missing_s: float
 
 
 class _RowChecker:
@@ -138,7 +230,16 @@ class _RowChecker:
         self.reader = reader
         self.rows = 0  # rows checked
         self.last_s: float | None = None
-        self.reference_step_s: float | None = None
+        # The grid's step: the reader's rate where it has one (its open set it), else the median
+        # of the first steps (a file read through for its bad row).
+        announced = not math.isnan(getattr(reader, "start_s", math.nan)) and math.isfinite(reader.fs_hz) and reader.fs_hz > 0
+        self.reference_step_s: float | None = 1.0 / reader.fs_hz if announced else None
+        # The current segment: its first time, the grid points given, its last row (interpolation
+        # across chunks), whether its samples are being resampled.
+        self._segment_s = math.nan
+        self._given = 0
+        self._last_row: tuple[float, NDArray[np.float64]] | None = None
+        self._resampling = False
 
     def checked(
         self, raw: Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]
@@ -191,21 +292,14 @@ class _RowChecker:
             steps = dt_s[1:first_bad] if self.last_s is None else dt_s[:first_bad]
             if steps.size:
                 self.reference_step_s = _median(steps[:REFERENCE_STEPS])
+        gap_rows = np.zeros(0, np.intp)
         if self.reference_step_s is not None:
             step_s = self.reference_step_s
             with np.errstate(invalid="ignore"):
-                off = np.abs(dt_s - step_s) > TIME_STEP_TOLERANCE * step_s
-            first_bad = min(first_bad, _first(off))
-            if not step_known and self._off_the_rate(step_s):
-                # The rows' step is not the rate the reader was opened with (first to last time):
-                # a gap further in. No row is given, as every one would be used at the wrong rate.
-                if first_bad < m:
-                    self._raise(first_bad, time_s, accel_mps2, dt_s, nan, far, back)
-                self.reader.error(
-                    f"its first time steps of {step_s:.6g} s ({1.0 / step_s:.6g} Hz) are not its rate from the first to the last "
-                    f"time ({self.reader.fs_hz:.6g} Hz): a gap or a jump further in; recordings must be uniformly sampled: "
-                    "split the file at the gap"
-                )
+                short = dt_s < (1.0 - JITTER_TOLERANCE) * step_s  # False for NaN and the first row
+                gap = dt_s > (1.0 + JITTER_TOLERANCE) * step_s
+            first_bad = min(first_bad, _first(short & ~back))
+            gap_rows = np.flatnonzero(gap[:first_bad])
         good_t, good_a = time_s[:first_bad], accel_mps2[:first_bad]
         if first_bad:
             beyond = (good_a < MIN_ACCEL_MPS2) | (good_a > MAX_ACCEL_MPS2)
@@ -213,18 +307,71 @@ class _RowChecker:
             if n_beyond:
                 good_a = np.clip(good_a, MIN_ACCEL_MPS2, MAX_ACCEL_MPS2)
                 self.reader.clipped_samples += n_beyond
-            yield good_t, good_a  # the rows before a bad one are used: only the bad row stops the reading
+            # The rows before a bad one are used: only the bad row stops the reading. A chunk
+            # never spans a gap: each stretch between two is given on its own.
+            gaps = set(gap_rows.tolist())
+            bounds = [0, *sorted(gaps - {0}), first_bad]
+            for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+                starts = lo in gaps or (self.last_s is None and lo == 0)
+                if starts:
+                    previous_s = float(time_s[lo - 1]) if lo else self.last_s
+                    if previous_s is not None:
+                        self._gap(previous_s, float(time_s[lo]))
+                    self._new_segment(float(time_s[lo]))
+                yield from self._on_grid(good_t[lo:hi], good_a[lo:hi], dt_s[lo:hi], continues=not starts)
         if first_bad < m:
             self._raise(first_bad, time_s, accel_mps2, dt_s, nan, far, back)
         self.rows += m
         self.last_s = float(time_s[-1])
 
-    def _off_the_rate(self, step_s: float) -> bool:
-        """Whether the file's step disagrees with the rate its reader announced (its survey's, when there was one)."""
-        fs_hz = self.reader.fs_hz
-        if math.isnan(self.reader.start_s) or not (math.isfinite(fs_hz) and fs_hz > 0):
-            return False  # _check_whole reads the rows through for a bad one: no rate is announced
-        return abs(1.0 / fs_hz - step_s) > TIME_STEP_TOLERANCE * step_s
+    def _gap(self, before_s: float, after_s: float) -> None:
+        reader = self.reader
+        reader.gap_count += 1
+        if len(reader.gaps) < MAX_LISTED_GAPS:
+            step_s = self.reference_step_s or 0.0
+            reader.gaps.append(Gap(before_s, after_s - before_s - step_s))
+
+    def _new_segment(self, first_s: float) -> None:
+        self._segment_s, self._given, self._last_row, self._resampling = first_s, 0, None, False
+
+    def _on_grid(self, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], dt_s: NDArray[np.float64],
+                 continues: bool) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:  # fmt: skip
+        """A stretch of rows of one segment, as they are while their steps are the grid's (within
+        TIME_STEP_TOLERANCE); from the first jittered step on, the segment's samples interpolated
+        onto its grid (the rows before stand for its first grid points)."""
+        step_s = self.reference_step_s
+        if step_s is None:  # read through for a bad row: no grid
+            yield time_s, accel_mps2
+            return
+        steps = dt_s if continues else dt_s[1:]  # a segment's first step is from before it
+        with np.errstate(invalid="ignore"):
+            deviation = float(np.max(np.abs(steps - step_s))) if steps.size else 0.0
+        self.reader.max_jitter_s = max(self.reader.max_jitter_s, deviation)
+        if not self._resampling and deviation <= TIME_STEP_TOLERANCE * step_s:
+            self._given += time_s.shape[0]
+            self._last_row = (float(time_s[-1]), accel_mps2[-1])
+            yield time_s, accel_mps2
+            return
+        if not self._resampling and self._last_row is not None:
+            # The grid continues from the last row given as it was: a logger's clock off the
+            # whole hertz (up to 0.05 %) moves the rows a second an hour from the first row's grid.
+            self._segment_s = self._last_row[0] - (self._given - 1) * step_s
+        self._resampling = True
+        if self._last_row is not None and continues:
+            known_t = np.concatenate([[self._last_row[0]], time_s])
+            known_a = np.concatenate([self._last_row[1][None, :], accel_mps2])
+        else:
+            known_t, known_a = time_s, accel_mps2
+        # The grid points up to the last row (a point that rounding puts a hair past it included).
+        last_k = int(np.floor((known_t[-1] - self._segment_s) / step_s + 1e-9))
+        grid_t: NDArray[np.float64] = self._segment_s + np.arange(self._given, last_k + 1, dtype=np.float64) * step_s
+        self._last_row = (float(time_s[-1]), accel_mps2[-1])
+        if grid_t.size == 0:
+            return
+        grid_a: NDArray[np.float64] = np.column_stack([np.interp(grid_t, known_t, known_a[:, c]) for c in range(known_a.shape[1])])
+        self._given += grid_t.size
+        self.reader.resampled_samples += grid_t.size
+        yield grid_t, grid_a
 
     def _raise(self, i: int, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], dt_s: NDArray[np.float64],
                nan: NDArray[np.bool_], far: NDArray[np.bool_], back: NDArray[np.bool_]) -> NoReturn:  # fmt: skip
@@ -246,8 +393,9 @@ class _RowChecker:
         assert step_s is not None
         reader.row_error(
             row,
-            f"time step {float(dt_s[i]):.6g} s differs from the file's {step_s:.6g} s ({1.0 / step_s:.6g} Hz); "
-            "recordings must be uniformly sampled: split the file at the gap",
+            f"time step {float(dt_s[i]):.6g} s is shorter than the file's {step_s:.6g} s ({1.0 / step_s:.6g} Hz) by more "
+            f"than its jitter ({JITTER_TOLERANCE:.0%}): a repeated or stray row, or samples at another rate; remove the row, "
+            "or resample the recording to one rate",
         )
 
 

@@ -1,30 +1,27 @@
 """CSV recordings, plain or gzip-compressed: the reader (surveyed at the open, parsed by pyarrow's
 streaming CSV reader a block of whole lines at a time, a bad line found and named by a slow path
-that reads as pyarrow does) and the writer (6 decimals, the same bytes for the same samples).
-
-A .csv.gz is decompressed once: at the open, within its bounds (drivers/files.py), into a private
-temporary copy that the survey and every later pass read as plain text (each pass used to
-decompress the whole stream again: the survey and the parse, twice an hour's 28 MB into 72 MB).
-The copy lives as long as the reader (a private folder removed with it)."""
+that reads as pyarrow does) and the writer (6 decimals, the same bytes for the same samples)."""
 
 from __future__ import annotations
 
-import contextlib
+import csv
 import gzip
 import os
 import re
-import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO, cast
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.drivers.files import UntrustedFile, open_untrusted, size_text
+from bogiemon.drivers.columns import ColumnMap
+from bogiemon.drivers.csv_rows import NUMBER, RowsError, parse_rows
+from bogiemon.drivers.files import UntrustedFile, size_text
+from bogiemon.drivers.quoting import quoted
 from bogiemon.drivers.recording_check import RecordingReader
-from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, RecordingError, arrow_columns, recording_rows
+from bogiemon.drivers.recording_format import COLUMNS, HEADER, MAX_LINE_BYTES, RECORDING_FILE, arrow_columns, parquet_available, recording_rows
 
 _ROW_FORMAT = "%.6f,%.6f,%.6f,%.6f\n"
 _WRITE_CHUNK_ROWS = 65536
@@ -34,38 +31,43 @@ GZIP_LEVEL = 6
 
 # A number as pyarrow's CSV reader takes it (spaces and tabs around it allowed): the slow path
 # that names a bad line must find the line pyarrow refused, not one Python's float() refuses.
-_NUMBER = re.compile(rb"[ \t]*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan(?:\([0-9A-Za-z_]*\))?|inf(?:inity)?)[ \t]*", re.I)
+_NUMBER = NUMBER  # numpy's parser (drivers/csv_rows.py) keeps to it too
 _NOT_BREAK = re.compile(rb"[^\r\n]+")
 _LINE_BREAK = re.compile(rb"\r\n|\r|\n")
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """How a file's lines hold a row: the delimiter, the header's names, and the cells read (the
+    time's, then each channel's, in channel order)."""
+
+    delimiter: bytes
+    names: tuple[str, ...]
+    picks: tuple[int, ...]
+
+    @property
+    def text(self) -> str:
+        return self.delimiter.decode().join(self.names)
+
+
+_DEFAULT_LAYOUT = _Layout(b",", COLUMNS, tuple(range(len(COLUMNS))))
+# The delimiters the sniffer chooses among (a decimal comma's files use ';').
+_DELIMITERS = ",;\t|"
+
+
 class CsvRecordingReader(RecordingReader):
-    """A CSV recording, plain or gzip: surveyed at the open, parsed by pyarrow's streaming reader."""
+    """A CSV recording, plain or gzip: surveyed at the open, parsed by pyarrow's streaming reader.
+    Its header names its columns: bogiemon's own (time_s,a1,a2,a3), or others mapped by `columns`."""
 
     format = "csv"
 
-    def __init__(self, path: Path) -> None:
-        super().__init__()
-        self.path = path
+    def __init__(self, file: UntrustedFile, columns: ColumnMap | None = None) -> None:
+        super().__init__(file, columns)
         self._header_bytes = 0
-        self._plain: Path | None = None  # a compressed file's decompressed copy (module docstring)
-        self._plain_dir: tempfile.TemporaryDirectory[str] | None = None
-
-    def _text(self) -> UntrustedFile:
-        """The file's text, opened for one pass: the decompressed copy of a compressed file."""
-        if self._plain is None:
-            return open_untrusted(self.path, RECORDING_FILE, RecordingError)
-        f = open_untrusted(self._plain, RECORDING_FILE, RecordingError)
-        f.path = self.path  # its messages name the recording, not the copy
-        return f
+        self._layout = _DEFAULT_LAYOUT
 
     def open(self, min_samples: int) -> None:
-        with open_untrusted(self.path, RECORDING_FILE, RecordingError) as raw, contextlib.ExitStack() as copying:
-            f = raw
-            if raw.compressed:  # the survey's reading, each chunk also written to the copy: one decompression
-                self._plain_dir = tempfile.TemporaryDirectory(prefix="bogiemon-csv-")
-                plain = Path(self._plain_dir.name) / "recording.csv"
-                f = cast(UntrustedFile, _Copying(raw, copying.enter_context(plain.open("xb"))))
+        with self.file.reopen() as f:
             first_chunk = f.read(MAX_LINE_BYTES + 2)
             end = re.search(rb"\r\n|\r|\n", first_chunk)
             header = first_chunk[: end.start()] if end else first_chunk
@@ -75,24 +77,34 @@ class CsvRecordingReader(RecordingReader):
             try:
                 text = header.decode("utf-8-sig")
             except UnicodeDecodeError:
-                _drain(raw)  # a damaged gzip stream inflates to garbage: call it damaged, not text
+                _drain(f)  # a damaged gzip stream inflates to garbage: call it damaged, not text
                 self.error(f"not a text file: expected a CSV recording with header '{HEADER}'")
-            if text.strip() != HEADER:
-                _drain(raw)
-                shown = text.strip()[:60] or "an empty line"
-                self.error(f"line 1: expected the header '{HEADER}', found '{shown}'")
+            if text.strip() != HEADER or not self.columns.is_default:
+                try:
+                    self._layout = _mapped_layout(text.strip(), first_chunk[self._header_bytes :], self.columns)
+                except ValueError as exc:
+                    _drain(f)
+                    self.error(f"line 1: {exc}")
+                if not parquet_available():  # numpy's parser reads bogiemon's own four columns only
+                    _drain(f)
+                    self.error(
+                        f"a CSV of other columns than {HEADER} is read with pyarrow, which this install leaves out: "
+                        "pip install 'bogiemon[recordings]', or convert it with bogiemon convert where pyarrow is installed"
+                    )
             survey = _survey(f, first_chunk[self._header_bytes :])
-        if raw.compressed:
-            self._plain = plain  # whole: the survey read the stream to its end
         self.n_samples = survey.rows
-        self._check_whole(min_samples, _row_time(survey.first), _row_time(survey.last))
+        first_s, last_s = _row_time(survey.first, self._layout), _row_time(survey.last, self._layout)
+        time_name = self._layout.names[self._layout.picks[0]]
+        self.time_to_s = self.columns.resolved_time_unit(time_name, first_s).to_s
+        scale = self.time_to_s
+        self._check_whole(min_samples, None if first_s is None else first_s * scale, None if last_s is None else last_s * scale)
 
     def where(self, row: int) -> str:
         return f"line {self._line_of_row(row)}"
 
     def _data_lines(self) -> Iterator[tuple[int, bytes]]:
         """(line number, bytes) of every line after the header."""
-        with self._text() as f:
+        with self.file.reopen() as f:
             _skip(f, self._header_bytes)
             yield from f.lines(first_number=2)
 
@@ -107,28 +119,15 @@ class CsvRecordingReader(RecordingReader):
         raise AssertionError(f"row {row} not found in {self.path}")  # pragma: no cover - rows come from the file
 
     def _raw_chunks(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-
-        # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
-        # nothing of pyarrow's left running when the reading stops at a bad row.
-        read_options = pacsv.ReadOptions(column_names=list(COLUMNS), block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
-        parse_options = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True)
-        convert_options = pacsv.ConvertOptions(
-            column_types=dict.fromkeys(COLUMNS, pa.float64()), null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
-        )
-        def parse(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-            for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
-                yield arrow_columns(batch)
-
+        parse, refused = _csv_parser(self._layout)
         number = 2  # the first line of the block
-        with self._text() as f:
+        with self.file.reopen() as f:
             _skip(f, self._header_bytes)
             try:
                 for block in _line_blocks(f):
                     try:
                         yield from parse(block)
-                    except pa.ArrowInvalid as exc:
+                    except refused as exc:
                         if not block.strip(b"\r\n"):
                             continue  # blank lines alone: pyarrow calls that an empty file
                         # The rows before the bad line are used; then the error names it.
@@ -147,29 +146,89 @@ class CsvRecordingReader(RecordingReader):
         start = 0
         for found in (*_LINE_BREAK.finditer(block), None):
             line = block[start : found.start() if found else len(block)]
-            problem = _line_problem(line) if line else None
+            problem = _line_problem(line, self._layout) if line else None
             if problem is not None:
                 return start, f"line {number}: {problem}"
             if found is None:
                 break
             start, number = found.end(), number + 1
-        cut = parse_error if len(parse_error) <= 200 else parse_error[:197] + "..."
-        return len(block), f"cannot parse the rows: {cut}"
+        return len(block), f"cannot parse the rows: {quoted(parse_error, 200)}"
 
 
-def _line_problem(line: bytes) -> str | None:
-    """Why a line is no row of four numbers as pyarrow reads them, or None if it is one."""
+CsvParse = Callable[[bytes], Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]]
+
+
+def _csv_parser(layout: _Layout = _DEFAULT_LAYOUT) -> tuple[CsvParse, type[Exception]]:
+    """The parser of a block of whole lines of a layout, and what it raises for a line that is no
+    row: pyarrow's CSV reader where it is installed, else numpy's (drivers/csv_rows.py: the same
+    rows to the bits, the same lines refused; a gateway installs without pyarrow; bogiemon's own
+    four columns only, which the open checked)."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ModuleNotFoundError:
+
+        def parse_numpy(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+            rows = parse_rows(block)
+            if rows.shape[0]:
+                yield np.ascontiguousarray(rows[:, 0]), np.ascontiguousarray(rows[:, 1:])
+
+        return parse_numpy, RowsError
+
+    # One parse per block of whole lines, in this thread: no reader threads, no read-ahead,
+    # nothing of pyarrow's left running when the reading stops at a bad row. Only the columns of
+    # the layout are converted, in its order (the time, then each channel).
+    cells = [f"c{i}" for i in range(len(layout.names))]  # the header's own names may repeat
+    picked = [cells[i] for i in layout.picks]
+    read_options = pacsv.ReadOptions(column_names=cells, block_size=2 * MAX_LINE_BYTES + 2, use_threads=False)
+    parse_options = pacsv.ParseOptions(
+        delimiter=layout.delimiter.decode(), quote_char=False, double_quote=False, escape_char=False, ignore_empty_lines=True
+    )
+    convert_options = pacsv.ConvertOptions(
+        include_columns=picked, column_types=dict.fromkeys(picked, pa.float64()), null_values=[], strings_can_be_null=False,
+        quoted_strings_can_be_null=False,
+    )  # fmt: skip
+
+    def parse_arrow(block: bytes) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        for batch in pacsv.read_csv(pa.py_buffer(block), read_options, parse_options, convert_options).to_batches():
+            yield arrow_columns(batch)
+
+    return parse_arrow, pa.ArrowInvalid
+
+
+def _mapped_layout(header: str, data: bytes, columns: ColumnMap) -> _Layout:
+    """The layout of a file whose header is not bogiemon's own: its delimiter (the sniffer's
+    choice among _DELIMITERS on the header and the first lines), its time column and its channels'
+    by the mapping; ValueError saying what is missing and how to map it."""
+    sample = header + "\n" + data[:4096].decode("utf-8", "replace")
+    try:
+        delimiter = csv.Sniffer().sniff(sample, delimiters=_DELIMITERS).delimiter
+    except csv.Error:
+        delimiter = max(_DELIMITERS, key=header.count)
+    names = tuple(cell.strip().strip('"').strip() for cell in header.split(delimiter))
+    try:
+        selected = columns.select(list(names))
+    except ValueError as exc:
+        raise ValueError(f"expected the header '{HEADER}' or the columns of a mapping, found '{quoted(header) or 'an empty line'}': {exc}") from None
+    picks = tuple(names.index(name) for name in selected)
+    return _Layout(delimiter.encode(), names, picks)
+
+
+def _line_problem(line: bytes, layout: _Layout = _DEFAULT_LAYOUT) -> str | None:
+    """Why a line is no row of numbers as pyarrow reads them, or None if it is one."""
     try:
         line.decode("utf-8")
     except UnicodeDecodeError as exc:
         cut = " (cut in the middle of a character: the file is truncated)" if exc.reason == "unexpected end of data" else ""
         return f"not UTF-8 text, byte 0x{line[exc.start]:02x} at column {exc.start + 1}{cut}; remove or repair the line"
-    cells = line.split(b",")
-    if len(cells) != 4:
-        return f"expected 4 comma-separated values ({HEADER}), found {len(cells)}"
-    for name, cell in zip(COLUMNS, cells, strict=True):
-        if not _NUMBER.fullmatch(cell):
-            return f"{name} is not a number: '{cell.decode().strip()[:40]}'"
+    cells = line.split(layout.delimiter)
+    n = len(layout.names)
+    if len(cells) != n:
+        separated = "comma" if layout.delimiter == b"," else repr(layout.delimiter.decode())
+        return f"expected {n} {separated}-separated values ({layout.text}), found {len(cells)}"
+    for i in layout.picks:
+        if not _NUMBER.fullmatch(cells[i]):
+            return f"{layout.names[i]} is not a number: '{quoted(cells[i].strip(), 40)}'"
     return None
 
 
@@ -178,25 +237,6 @@ class _Survey:
     rows: int  # non-blank lines after the header
     first: bytes | None  # the first of them
     last: bytes | None  # the last of them
-
-
-class _Copying:
-    """A compressed UntrustedFile whose every read is also written to a copy (the stream
-    decompressed once: module docstring); everything else is the file's own."""
-
-    def __init__(self, f: UntrustedFile, copy: BinaryIO) -> None:
-        self._f, self._copy = f, copy
-
-    def read(self, size: int | None = -1) -> bytes:
-        data = self._f.read(size)
-        try:
-            self._copy.write(data)
-        except OSError as exc:
-            self._f.refuse(f"cannot be decompressed into a temporary copy ({exc.strerror or exc}); is the temporary folder full?")
-        return data
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._f, name)
 
 
 class _LongLine(Exception):
@@ -266,15 +306,16 @@ def _count_lines(data: bytes) -> tuple[int, int]:
     return starts, breaks
 
 
-def _row_time(line: bytes | None) -> float | None:
-    """The time of a row as the parser reads it, or None if the row is no row of four numbers."""
+def _row_time(line: bytes | None, layout: _Layout) -> float | None:
+    """The time of a row (in the file's unit) as the parser reads it, or None if the row is no row
+    of the layout."""
     if line is None:
         return None
-    cells = line.split(b",")
-    if len(cells) != 4 or not _NUMBER.fullmatch(cells[0]):
+    cells = line.split(layout.delimiter)
+    if len(cells) != len(layout.names) or not _NUMBER.fullmatch(cells[layout.picks[0]]):
         return None
     try:
-        return float(cells[0])
+        return float(cells[layout.picks[0]])
     except ValueError:  # nan(...): pyarrow's NaN, no time
         return None
 
@@ -296,20 +337,20 @@ def _drain(f: UntrustedFile) -> None:
 
 
 def write_csv_recording(
-    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False
+    path: str | Path, time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64], *, fsync: bool = False, gzip_level: int = GZIP_LEVEL
 ) -> None:
     """Write a recording; times with microsecond resolution, accelerations with 6 decimals (1e-6 m/s^2).
 
-    A path ending in .gz is written gzip-compressed (no name and no time stamp in the gzip header:
-    the same samples give the same bytes). fsync: on the disk before this returns (a file about
-    to be renamed into place must be whole there first).
+    A path ending in .gz is written gzip-compressed at gzip_level (no name and no time stamp in the
+    gzip header: the same samples give the same bytes). fsync: on the disk before this returns (a
+    file about to be renamed into place must be whole there first).
     """
     path = Path(path)
     time_s, accel = recording_rows(time_s, accel_mps2)
     rows = np.column_stack([time_s, accel])
     with path.open("wb") as raw:
         if path.name.lower().endswith(".gz"):
-            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=GZIP_LEVEL, mtime=0) as packed:
+            with gzip.GzipFile(filename="", mode="wb", fileobj=raw, compresslevel=gzip_level, mtime=0) as packed:
                 _write_rows(packed, rows)  # closing the gzip stream writes its trailer, and leaves `raw` open
         else:
             _write_rows(raw, rows)
@@ -320,10 +361,15 @@ def write_csv_recording(
 
 def _write_rows(f: BinaryIO | gzip.GzipFile, rows: NDArray[np.float64]) -> None:
     f.write((HEADER + "\n").encode("ascii"))
-    # Exactly np.savetxt(fmt="%.6f")'s text (the same printf formatting), but one %-format call
-    # per chunk of rows instead of one per row: 1.6x faster (3.7 s -> 2.3 s for an hour at 500 Hz
-    # here), memory bounded by the chunk. The text is ASCII: digits, signs, points and commas.
     for start in range(0, rows.shape[0], _WRITE_CHUNK_ROWS):
-        chunk = rows[start : start + _WRITE_CHUNK_ROWS]
-        f.write(((_ROW_FORMAT * chunk.shape[0]) % tuple(chunk.ravel().tolist())).encode("ascii"))
+        f.write(format_rows(rows[start : start + _WRITE_CHUNK_ROWS]))
+
+
+def format_rows(rows: NDArray[np.float64]) -> bytes:
+    """Rows (m, 4) of a recording as its CSV text, 6 decimals.
+
+    Exactly np.savetxt(fmt="%.6f")'s text (the same printf formatting), but one %-format call per
+    chunk of rows instead of one per row: 1.6x faster (3.7 s -> 2.3 s for an hour at 500 Hz here).
+    The text is ASCII: digits, signs, points and commas."""
+    return ((_ROW_FORMAT * rows.shape[0]) % tuple(rows.ravel().tolist())).encode("ascii")
 

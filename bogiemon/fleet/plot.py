@@ -10,15 +10,17 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from html import escape
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from bogiemon.daemon.messages import EventMessage
 from bogiemon.judgement.vocabulary import Mode
 from bogiemon.fleet import svg
 from bogiemon.fleet.judged_files import EMPTY_SERIES, Series, WagonPage
+
+if TYPE_CHECKING:
+    from bogiemon.daemon.messages import EventMessage
 
 # The colours a keeper learns once: the badges, the event markers and the plot lines.
 STATE_COLOURS = {"CONFIRMED": "#c62828", "SUSPECTED": "#ffb300", "SENSOR_FAULT": "#7b1fa2", "NOT_JUDGED": "#d84315", "NORMAL": "#2e7d32", "NO_DATA": "#757575"}

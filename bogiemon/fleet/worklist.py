@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bogiemon.daemon.messages import EventMessage
+from bogiemon.judgement.events import EventKind
 from bogiemon.fleet.judged_files import STATES, WagonPage, WagonState
 
 DEFAULT_BOGIE = "1"
@@ -51,12 +52,9 @@ PROBLEM_WORDS = {
 
 
 def bogie_of(message: EventMessage) -> str:
-    """The bogie an event is about: its own `bogie` (a field of the event, or of its details, as
-    a two-bogie gateway writes it), else DEFAULT_BOGIE. The one place that reads it."""
-    found = getattr(message, "bogie", None)
-    if found is None:
-        found = message.details.get("bogie")
-    return str(found) if isinstance(found, str | int) and not isinstance(found, bool) and str(found) else DEFAULT_BOGIE
+    """The bogie an event is about: its own `bogie` (bogie "1" when a one-bogie gateway's message
+    names none: daemon/messages.py). The one place that reads it."""
+    return message.bogie or DEFAULT_BOGIE
 
 
 @dataclass
@@ -322,8 +320,8 @@ def work_line(page: WagonPage, compare_s: float, fleet_newest_s: float | None) -
         wagon=e["wagon"], type=e["type"], state=state, bogies=named, action=text, due_days=due,
         since_s=since if since is not None else first_s, sure=how_sure(state, e), changed=changed, changed_text=changed_text,
         last_data_s=last_data_s, stale=stale, sensor_fault_windows=int(e["sensor_fault_windows"]), windows=int(e["windows"]),
-        judged=int(e["judged"]), sensor_faults=kinds.count("SENSOR_FAULT"), suspicions=kinds.count("SUSPECTED"),
-        alarms=kinds.count("CONFIRMED"), commissioned=tuple(e["commissioned"]), notes=notes,
+        judged=int(e["judged"]), sensor_faults=kinds.count(EventKind.SENSOR_FAULT), suspicions=kinds.count(EventKind.SUSPECTED),
+        alarms=kinds.count(EventKind.CONFIRMED), commissioned=tuple(e["commissioned"]), notes=notes,
     )  # fmt: skip
 
 

@@ -192,7 +192,7 @@ def runs_of(windows: Sequence[WindowIndicators], hop_s: float) -> list[list[int]
 def shrunk_covariance(x: NDArray[np.float64], prior: NDArray[np.float64], independent: float) -> tuple[NDArray[np.float64], float]:
     """(1 - lambda) S + lambda * prior scaled to trace S, lambda = p / (p + independent)."""
     p = x.shape[1]
-    own = np.cov(x.T)
+    own = np.atleast_2d(np.cov(x.T))
     lam = float(p / (p + max(independent, 1.0)))
     scaled = prior * (np.trace(own) / np.trace(prior))
     return (1.0 - lam) * own + lam * scaled, lam

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import Event, JudgedAgainDetails, NotJudgedDetails
 from bogiemon.detection import WindowIndicators
 
 
@@ -44,17 +44,17 @@ class CoverageTracker:
         self.not_judged_after_s = not_judged_after_s
         self.state = state or CoverageState()
 
-    def update(self, window: WindowIndicators, judged: bool, unfamiliar: bool, why: Mapping[str, Any]) -> list[Event]:
-        """judged: the window was judged; unfamiliar: it was running left unjudged because it is
-        unlike the commissioning; why: what it was unlike (for the event's details)."""
+    def update(self, window: WindowIndicators, judged: bool, unfamiliar: str | None) -> list[Event]:
+        """judged: the window was judged; unfamiliar: why it was running left unjudged, unlike the
+        commissioning (judgement/running.py; None: it was not)."""
         s = self.state
         if judged:
             s.unjudged_running_s, s.since_s = 0.0, window.end_s
             if s.reported:
                 s.reported = False
-                return [self._event(window, EventKind.JUDGED_AGAIN, {})]
+                return [Event.of(window.end_s, JudgedAgainDetails(window_start_s=window.start_s, window_end_s=window.end_s), self.config_hash)]
             return []
-        if not unfamiliar:
+        if unfamiliar is None:
             return []
         s.unjudged_running_s += self.hop_s
         if s.reported or s.unjudged_running_s < self.not_judged_after_s:
@@ -65,9 +65,8 @@ class CoverageTracker:
             f"not judged for the last {hours:.1f} h of running: the wagon is unlike its commissioning "
             "(its load, track or speed, or a change of the wagon itself); inspect it, or commission it again"
         )
-        return [self._event(window, EventKind.NOT_JUDGED, {"message": message, "unjudged_running_s": s.unjudged_running_s,
-                                                            "last_judged_s": s.since_s, **why})]  # fmt: skip
-
-    def _event(self, window: WindowIndicators, kind: EventKind, details: dict[str, Any]) -> Event:
-        details = {"window_start_s": window.start_s, "window_end_s": window.end_s, **details}
-        return Event(time_s=window.end_s, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash=self.config_hash, details=details)
+        said = NotJudgedDetails(
+            window_start_s=window.start_s, window_end_s=window.end_s, message=message, unjudged_running_s=s.unjudged_running_s,
+            last_judged_s=s.since_s, unlike=unfamiliar,
+        )  # fmt: skip
+        return [Event.of(window.end_s, said, self.config_hash)]

@@ -51,14 +51,14 @@ import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
 from numpy.typing import NDArray
 
 from bogiemon.judgement.diagnosis import NO_EVIDENCE, Diagnosis, diagnose
-from bogiemon.judgement.events import DEFAULT_SEVERITY, INDICATOR_FIELDS, Event, EventKind
+from bogiemon.judgement.events import INDICATOR_FIELDS, ClearedDetails, ConfirmedDetails, Event, KOfN, RunningContext, SuspectedDetails, Trigger
 from bogiemon.judgement.models import Baseline, finite_or_none
 from bogiemon.judgement.rules import Level, Threshold, confirms, suspicion_k, trend_weight
 from bogiemon.judgement.vocabulary import LoadState, Method, Mode
@@ -116,6 +116,18 @@ class Judgement:
         """The worst level of the window's own values (not the trend's)."""
         return max(self.levels.values(), default=Level.OK)
 
+    def with_values(self, extra: Mapping[str, tuple[float, Threshold]]) -> Judgement:
+        """The judgement with more judged values (name -> (value, its limit)), e.g. the sister's
+        evidence (judgement/sister.py): their levels count as the window's own do."""
+        values, levels, limits = dict(self.values), dict(self.levels), dict(self.limits)
+        ratios = [self.alarm_ratio] if math.isfinite(self.alarm_ratio) else []
+        for name, (value, limit) in extra.items():
+            values[name], limits[name] = value, limit
+            levels[name] = limit.level(value) if math.isfinite(value) else Level.OK
+            ratios += [abs(value - limit.center) / limit.alarm] if math.isfinite(value) else []
+        ratio = max(ratios, default=math.nan)
+        return dataclasses.replace(self, values=values, levels=levels, limits=limits, alarm_ratio=ratio)
+
     def at_or_above(self, level: Level) -> dict[str, float]:
         return {name: self.values[name] for name, lv in self.levels.items() if lv >= level}
 
@@ -172,6 +184,19 @@ class DecisionState:
         )
 
 
+class _Stated(TypedDict):
+    """What every suspension event states of its window (DecisionDetails' fields)."""
+
+    window_start_s: float
+    window_end_s: float
+    load: LoadState
+    thresholds: Mapping[str, Threshold]
+    method: Method
+    running: RunningContext | None
+    baseline: str | None
+    trend: float | None
+
+
 class Decider:
     """Turns judged windows into SUSPECTED, CONFIRMED and CLEARED events.
 
@@ -220,15 +245,18 @@ class Decider:
         return Judgement(values, levels, thresholds, shift, name, max(ratios, default=math.nan), level_margin=level_margin)
 
     def update(
-        self, window: WindowIndicators, load: LoadState, context: Mapping[str, Any] | None = None, features: WindowFeatures | None = None,
-        level_margin: float = 1.0,
+        self, window: WindowIndicators, load: LoadState, context: RunningContext | None = None, features: WindowFeatures | None = None,
+        level_margin: float = 1.0, extra: Mapping[str, tuple[float, Threshold]] | None = None,
     ) -> tuple[Judgement, list[Event]]:  # fmt: skip
         """Advance the state machine with one judgeable window; return its judgement and events.
 
-        context: more details for the events (e.g. how the load state was decided); level_margin:
-        see judge.
+        context: how the load state was decided, for the events (judgement/running.py); level_margin:
+        see judge; extra: more judged values with their limits (Judgement.with_values), which
+        count towards the same k-of-n confirmation as the window's own.
         """
         judgement = self._with_trend(self.judge(window, load, features, level_margin), load)
+        if extra:
+            judgement = judgement.with_values(extra)
         s, cfg = self.state, self.settings
         alarm = judgement.worst >= Level.ALARM
         s.recent_alarms.append(alarm)
@@ -238,14 +266,10 @@ class Decider:
         suspected = confirms(s.recent_warnings, suspicion_k(cfg.confirm_k)) or judgement.trend_level >= Level.WARNING
         s.clean_streak = 0 if warned else s.clean_streak + 1
         events: list[Event] = []
-        details = {
-            "load": load.value, **(context or {}), "method": cfg.method.value, "window_start_s": window.start_s, "window_end_s": window.end_s,
-            "thresholds": {n: {"center": t.center, "warning": t.warning, "alarm": t.alarm} for n, t in judgement.limits.items()},
-        }  # fmt: skip
-        if judgement.baseline is not None:
-            details["baseline"] = judgement.baseline
-        if math.isfinite(judgement.trend):
-            details["trend"] = judgement.trend
+        stated = _Stated(
+            window_start_s=window.start_s, window_end_s=window.end_s, load=load, thresholds=dict(judgement.limits), method=cfg.method,
+            running=context, baseline=judgement.baseline, trend=judgement.trend if math.isfinite(judgement.trend) else None,
+        )  # fmt: skip
 
         by_windows = confirms(s.recent_alarms, cfg.confirm_k)
         by_trend = judgement.trend_level >= Level.ALARM
@@ -257,25 +281,23 @@ class Decider:
             else:
                 fired = {FUSED_TREND: judgement.trend}
                 diagnosis = self.trend_diagnosis(load)
-            events.append(
-                self._event(
-                    window, EventKind.CONFIRMED, fired,
-                    {**details, "trigger": "windows" if by_windows else "trend",
-                     "alarm_windows": f"{sum(s.recent_alarms)} of {len(s.recent_alarms)}", "diagnosis": diagnosis.as_dict()},
-                )  # fmt: skip
-            )
+            confirmed = ConfirmedDetails(
+                **stated, trigger=Trigger.WINDOWS if by_windows else Trigger.TREND, alarm_windows=KOfN(sum(s.recent_alarms), len(s.recent_alarms)),
+                diagnosis=diagnosis.stated(),
+            )  # fmt: skip
+            events.append(Event.of(window.end_s, confirmed, self.config_hash, fired))
         elif s.mode is Mode.NORMAL and suspected:
             s.mode = Mode.SUSPECTED
             fired = judgement.at_or_above(Level.WARNING) or {FUSED_TREND: judgement.trend}
-            details = {**details, "warning_windows": f"{sum(s.recent_warnings)} of {len(s.recent_warnings)}"}
-            events.append(self._event(window, EventKind.SUSPECTED, fired, details))
+            suspicion = SuspectedDetails(**stated, warning_windows=KOfN(sum(s.recent_warnings), len(s.recent_warnings)))
+            events.append(Event.of(window.end_s, suspicion, self.config_hash, fired))
         elif s.mode is not Mode.NORMAL and s.clean_streak >= cfg.clear_after_windows:
             previous = s.mode
             s.mode = Mode.NORMAL
             s.recent_alarms.clear()
             s.recent_shifts.clear()
             s.recent_warnings.clear()
-            events.append(self._event(window, EventKind.CLEARED, judgement.values, {**details, "cleared": previous.value}))
+            events.append(Event.of(window.end_s, ClearedDetails(**stated, cleared=previous), self.config_hash, judgement.values))
         return judgement, events
 
     def _with_trend(self, judgement: Judgement, load: LoadState) -> Judgement:
@@ -324,13 +346,3 @@ class Decider:
                 FUSED_TREND: Threshold(lv.trend_warning, lv.trend_alarm),
             }
         return {n: t.widened(level_margin) for n, t in self.settings.thresholds[load].items()}
-
-    def _event(self, window: WindowIndicators, kind: EventKind, fired: Mapping[str, float], details: Mapping[str, Any]) -> Event:
-        return Event(
-            time_s=window.end_s,
-            kind=kind,
-            severity=DEFAULT_SEVERITY[kind],
-            config_hash=self.config_hash,
-            indicators=dict(fired),
-            details=dict(details),
-        )

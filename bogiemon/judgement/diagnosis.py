@@ -76,6 +76,7 @@ at each axle box, or the dampers' force).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -107,13 +108,15 @@ PAIR_CONFIDENCE_MAX = 0.95
 
 @dataclass(frozen=True)
 class Diagnosis:
-    """What the couplings say about a confirmed fault (an event's "diagnosis").
+    """What the couplings say about a confirmed fault (a CONFIRMED event's diagnosis).
 
     corners: the corners it could be, as the signs fix them: () unknown; a diagonal pair (the
         pitch-roll sign alone: THE PAIR in the module docstring), the corner that softened in
         effect first; never one corner alone (the bounce-roll sign that would pick it is the one a
-        broken front coil turns round: measured, module docstring).
-    kind: always "unknown" from these couplings (module docstring); the field stays for the schema.
+        broken front coil turns round: measured, module docstring). An event stored by a version
+        before the pair may name one corner.
+    kind: always "unknown" from these couplings (module docstring); the field stays for the schema
+        (an event stored by an older version may name one).
     corner_confidence: the probability that the fault's corner is among `corners`: that healthy
         scatter of the stated spread did not flip the pitch-roll sign, Phi(|T_pr|), never above
         PAIR_CONFIDENCE_MAX (what the pair was measured to hold on another wagon model, so that a
@@ -121,7 +124,9 @@ class Diagnosis:
         unknown corner, that of the likeliest pair (bands that disagree can leave it high).
     kind_confidence: 0.0 (no kind is told).
     best_match: the statistic in words, e.g. "pitch-roll +4.1, bounce-roll +3.2 sd at 4-8 Hz:
-        leading-left or trailing-right (leading-left if softer)" ("" without evidence).
+        leading-left or trailing-right (leading-left if softer)"; for an unknown corner why no pair
+        is named, and never a pair ("pitch-roll -0.2, bounce-roll +1.1 sd at 4-8 Hz: the pitch-roll
+        sign is within the noise (under 2.5 sd), no pair named"); "" without evidence.
     cosine: the agreement of the read bands with the likeliest corner's sign pattern: the cosine
         between the bands' standard scores and those signs, 1 when every band has the predicted
         sign, below 0 when most disagree.
@@ -141,17 +146,11 @@ class Diagnosis:
         """The corners in words: "unknown", or "leading-left or trailing-right"."""
         return " or ".join(c.value for c in self.corners) if self.corners else UNKNOWN
 
-    def as_dict(self) -> dict[str, object]:
-        return {
-            "corner": self.corner,
-            "corners": [c.value for c in self.corners],
-            "kind": self.kind,
-            "corner_confidence": round(self.corner_confidence, 3),
-            "kind_confidence": round(self.kind_confidence, 3),
-            "best_match": self.best_match,
-            "cosine": round(self.cosine, 3),
-            "windows": self.windows,
-        }
+    def stated(self) -> Diagnosis:
+        """The diagnosis as an event states it: the confidences and the cosine to 3 decimals."""
+        return dataclasses.replace(
+            self, corner_confidence=round(self.corner_confidence, 3), kind_confidence=round(self.kind_confidence, 3), cosine=round(self.cosine, 3)
+        )
 
 
 NO_EVIDENCE = Diagnosis((), UNKNOWN, 0.0, 0.0, "", 0.0, 0)
@@ -222,10 +221,14 @@ def judge_signs(evidence: SignEvidence, windows: int) -> Diagnosis:
     clear = abs(t_pr) >= MIN_SCORE and bool(np.all(pr_against > -CONTRADICTION))
     pair = (likeliest, diagonal_of(likeliest))
     bands = ", ".join(band_label(b).removesuffix(" Hz") for b in evidence.bands)
-    described = (
-        f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz: "
-        f"{pair[0].value} or {pair[1].value} ({likeliest.value} if softer)"
-    )
+    read = f"pitch-roll {t_pr:+.1f}, bounce-roll {t_br:+.1f} sd at {bands} Hz"
+    if clear:
+        described = f"{read}: {pair[0].value} or {pair[1].value} ({likeliest.value} if softer)"
+    elif not bool(np.all(pr_against > -CONTRADICTION)):
+        # An unknown corner names no pair: a sign read within the noise would point at one.
+        described = f"{read}: a band contradicts the pitch-roll sign, no pair named"
+    else:
+        described = f"{read}: the pitch-roll sign is within the noise (under {MIN_SCORE:g} sd), no pair named"
     return Diagnosis(
         corners=pair if clear else (),
         kind=UNKNOWN,

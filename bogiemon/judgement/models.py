@@ -289,7 +289,8 @@ def parse_fused_model(data: Mapping[str, Any], load: LoadState, where: str = FUS
     if not isinstance(section, Mapping):
         raise ModelError(f"{where}: no [{load}] table")
     w = f"{where}: {load}"
-    features = tuple(str(f) for f in section.get("features", ()))
+    listed = section.get("features", ())
+    features = tuple(str(f) for f in listed) if isinstance(listed, list | tuple) else (repr(listed),)
     if features != COUPLING_NAMES:
         raise ModelError(f"{w}.features: {list(features)} differ from the detection core's {list(COUPLING_NAMES)}")
     n = len(features)
@@ -320,10 +321,31 @@ class ShippedModels:
     fused: Mapping[LoadState, FusedModel]
 
 
-@functools.cache
+def model_paths(directory: str = "") -> tuple[Path, Path]:
+    """Where the load and fused models are read from: `directory`, else bogiemon's config folder."""
+    folder = Path(directory) if directory else Path(str(resources.files("bogiemon.config")))
+    return folder / LOAD_MODEL_FILE, folder / FUSED_MODEL_FILE
+
+
 def shipped_models(directory: str = "") -> ShippedModels:
     """The priors in bogiemon's config folder, or in `directory` (decision.models_dir: priors
-    refitted on another fleet); read once per process and folder."""
+    refitted on another fleet); read again only when a file changed (a reload then reads the new
+    ones, and refuses damaged ones, instead of keeping what it read first)."""
+    return _parsed_models(directory, tuple(_stamp(path) for path in model_paths(directory)))
+
+
+def _stamp(path: Path) -> tuple[int, ...]:
+    """What tells a file's version apart without reading it (missing: empty)."""
+    try:
+        st = path.stat()
+    except (OSError, ValueError):
+        return ()
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _parsed_models(directory: str, stamps: tuple[tuple[int, ...], ...]) -> ShippedModels:
     load = parse_load_model(_read(LOAD_MODEL_FILE, directory))
     fused_data = _read(FUSED_MODEL_FILE, directory)
     return ShippedModels(load=load, fused={ld: parse_fused_model(fused_data, ld) for ld in LoadState})
+

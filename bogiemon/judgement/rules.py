@@ -26,6 +26,7 @@ import math
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
@@ -86,12 +87,13 @@ class ThresholdFit(Threshold):
 
 
 def two_sided_z(rate: float) -> float:
-    """The normal quantile beyond which |N(0, 1)| lies with probability `rate`."""
-    # Imported here: only fitting needs it, and scipy.special costs a command that merely
-    # analyses or monitors a quarter of a second of start-up.
-    from scipy import special
+    """The normal quantile beyond which |N(0, 1)| lies with probability `rate`.
 
-    return float(-special.ndtri(rate / 2))
+    The standard library's inverse normal CDF (Wichura's AS241, about 1e-16 relative error; equal
+    to scipy.special.ndtri within 1e-12 over the rates a threshold uses, tests/judgement): a
+    gateway that calibrates needs no scipy.
+    """
+    return -NormalDist().inv_cdf(rate / 2)
 
 
 def fit_threshold(values: ArrayLike, warning_rate: float, alarm_rate: float) -> ThresholdFit:

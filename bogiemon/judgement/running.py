@@ -38,13 +38,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
-
 import numpy as np
 from numpy.typing import NDArray
 
+from bogiemon.judgement.events import RunningContext
 from bogiemon.judgement.models import LoadDiscriminant, LoadModel, LoadSignature
-from bogiemon.judgement.vocabulary import LoadSetting, LoadState
+from bogiemon.judgement.vocabulary import LoadSetting, LoadSource, LoadState
 
 # The excitation judged, relative to the commissioning's gentlest and roughest windows. Below half
 # the gentlest the dry-friction dampers stick (the couplings of a healthy wagon change with them);
@@ -64,24 +63,23 @@ class LoadChoice:
     """A window's load state and how it is judged in it (load None: not judged, `unjudged` says why)."""
 
     load: LoadState | None
-    source: str  # "configured", "commissioned" or "estimated" (the shipped load model)
+    source: LoadSource
     unjudged: str | None = None
     level_margin: float = 1.0  # the window's levels x this (running outside the commissioning's excitation)
     excitation_outside: float = 1.0
     distance: float = math.nan  # the load vector's distance from the state (LoadSignature.distance)
     p_full: float | None = None  # the shipped load model's P(full), where it decided
 
-    def context(self) -> dict[str, Any]:
+    def context(self) -> RunningContext:
         """What the events' details state of how the window was judged."""
-        out: dict[str, Any] = {"load_source": self.source}
-        if math.isfinite(self.distance):
-            out["load_distance"] = round(self.distance, 3)
-        if self.p_full is not None and math.isfinite(self.p_full):
-            out["p_full"] = round(self.p_full, 4)
-        if self.level_margin > 1.0:
-            out["excitation_outside"] = round(self.excitation_outside, 3)
-            out["level_margin"] = round(self.level_margin, 3)
-        return out
+        raised = self.level_margin > 1.0
+        return RunningContext(
+            load_source=self.source,
+            load_distance=round(self.distance, 3) if math.isfinite(self.distance) else None,
+            p_full=round(self.p_full, 4) if self.p_full is not None and math.isfinite(self.p_full) else None,
+            excitation_outside=round(self.excitation_outside, 3) if raised else None,
+            level_margin=round(self.level_margin, 3) if raised else None,
+        )
 
 
 def choose_load(
@@ -97,9 +95,9 @@ def choose_load(
     fixed = load.fixed()
     by_load = {s.load: s for s in states}
     if fixed is not None:
-        return _against(LoadChoice(fixed, "configured"), by_load.get(fixed), x, excitation_mps2)
+        return _against(LoadChoice(fixed, LoadSource.CONFIGURED), by_load.get(fixed), x, excitation_mps2)
     if states and x is None:
-        return LoadChoice(None, "commissioned", unjudged="no load vector: a mode had no power")
+        return LoadChoice(None, LoadSource.COMMISSIONED, unjudged="no load vector: a mode had no power")
     if discriminant is not None and set(by_load) == set(LoadState):
         assert x is not None
         line = discriminant.load_of(x)  # None: within its margin, it abstains
@@ -109,20 +107,26 @@ def choose_load(
         side = line if line is not None and (modelled is line or nearest is line) else modelled if modelled is nearest else None
         if side is None:
             why = f"between the commissioned load states (the wagon's line says {line or 'neither'}, the load model {modelled}, the nearer state {nearest})"
-            return LoadChoice(None, "commissioned", unjudged=why, distance=min(s.distance(x) for s in states), p_full=p_full)
-        return _against(LoadChoice(side, "commissioned", p_full=p_full), by_load[side], x, excitation_mps2)
+            return LoadChoice(None, LoadSource.COMMISSIONED, unjudged=why, distance=min(s.distance(x) for s in states), p_full=p_full)
+        return _against(LoadChoice(side, LoadSource.COMMISSIONED, p_full=p_full), by_load[side], x, excitation_mps2)
     if len(by_load) == len(LoadState):  # both states, no line between them: the nearer
         assert x is not None
         closest = min(states, key=lambda s: s.distance(x))
-        return _against(LoadChoice(closest.load, "commissioned"), closest, x, excitation_mps2)
+        return _against(LoadChoice(closest.load, LoadSource.COMMISSIONED), closest, x, excitation_mps2)
     if model is None:
         raise ValueError("load 'auto' needs the load model")
-    p_full = model.probability_of(x) if x is not None else math.nan
+    if x is None:
+        return LoadChoice(None, LoadSource.ESTIMATED, unjudged="no load vector: a mode had no power")
+    p_full = model.probability_of(x)
+    if not math.isfinite(p_full):
+        # NaN is neither side of 0.5: a comparison would make it tare, and an empty wagon's levels
+        # are not a loaded one's. What cannot be told is not judged.
+        return LoadChoice(None, LoadSource.ESTIMATED, unjudged="the load model cannot tell the load: its P(full) is not a number")
     # A wagon is loaded or empty; the estimate is either side of 0.5 by a wide margin on the
     # simulated fleets (docs/robust/README.md): no third state is needed.
     estimated = LoadState.FULL if p_full >= 0.5 else LoadState.TARE
     own = by_load.get(estimated)  # one load commissioned: the other runs on the population baseline
-    choice = LoadChoice(estimated, "commissioned" if own is not None else "estimated", p_full=p_full)
+    choice = LoadChoice(estimated, LoadSource.COMMISSIONED if own is not None else LoadSource.ESTIMATED, p_full=p_full)
     return _against(choice, own, x, excitation_mps2)
 
 

@@ -3,11 +3,10 @@ events out (judgement/health.py judges each window)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import Event, EventDetails, Problems, SensorClearedDetails, SensorFaultDetails, SuspensionHint
 from bogiemon.judgement.health import WindowHealth
 from bogiemon.detection import WindowIndicators
 
@@ -60,13 +59,12 @@ class HealthTracker:
         """A sensor fault is reported that holds the suspension's judgement back until it clears."""
         return self.faulted and self.state.holding
 
-    def update(self, window: WindowIndicators, health: WindowHealth, holds: bool = True, suspension: Mapping[str, Any] | None = None) -> list[Event]:
+    def update(self, window: WindowIndicators, health: WindowHealth, holds: bool = True, suspension: SuspensionHint | None = None) -> list[Event]:
         """The window's sensor events. holds: whether its problems hold the suspension's judgement
         back; suspension: what its couplings said of a one-corner suspension fault, told in the
         SENSOR_FAULT beside the sensor (a fault already reported is told again when this is new)."""
         s = self.state
         current = {ch: sorted(p.value for p in problems) for ch, problems in health.problems.items()}
-        details = {"window_start_s": window.start_s, "window_end_s": window.end_s, "rms_mps2": list(window.rms_mps2)}
         if current:
             s.clean_windows = 0
             s.holding = (s.holding and bool(s.reported)) or holds
@@ -75,15 +73,23 @@ class HealthTracker:
             if grown != s.reported or told:
                 s.reported = grown
                 s.suspension = s.suspension or told
-                more = {"suspension": dict(suspension)} if suspension is not None else {}
-                return [self._event(window, EventKind.SENSOR_FAULT, {**details, "problems": current, "reported": grown, **more})]
+                found = SensorFaultDetails(
+                    window_start_s=window.start_s, window_end_s=window.end_s, rms_mps2=tuple(window.rms_mps2), problems=_stated(current),
+                    reported=_stated(grown), suspension=suspension,
+                )  # fmt: skip
+                return [self._event(window, found)]
             return []
         if s.reported and health.gate is None:
             s.clean_windows += 1
             if s.clean_windows >= self.clear_after_windows:
                 previous, s.reported, s.clean_windows, s.holding, s.suspension = s.reported, {}, 0, True, False
-                return [self._event(window, EventKind.SENSOR_CLEARED, {**details, "cleared": previous})]
+                cleared = SensorClearedDetails(window_start_s=window.start_s, window_end_s=window.end_s, rms_mps2=tuple(window.rms_mps2), cleared=_stated(previous))
+                return [self._event(window, cleared)]
         return []
 
-    def _event(self, window: WindowIndicators, kind: EventKind, details: dict[str, object]) -> Event:
-        return Event(time_s=window.end_s, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash=self.config_hash, details=details)
+    def _event(self, window: WindowIndicators, details: EventDetails) -> Event:
+        return Event.of(window.end_s, details, self.config_hash)
+
+
+def _stated(problems: dict[str, list[str]]) -> Problems:
+    return {ch: tuple(names) for ch, names in problems.items()}

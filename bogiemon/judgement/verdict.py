@@ -20,11 +20,12 @@ from bogiemon.judgement.coverage import CoverageState, CoverageTracker
 from bogiemon.judgement.decision import Decider, DecisionSettings, DecisionState, Judgement
 from bogiemon.judgement.rules import Level
 from bogiemon.judgement.diagnosis import diagnose
-from bogiemon.judgement.events import Event
+from bogiemon.judgement.events import Event, SuspensionHint
 from bogiemon.judgement.settings import HealthSettings
 from bogiemon.judgement.health import WindowHealth, assess_window
 from bogiemon.judgement.models import LoadDiscriminant, LoadModel, LoadSignature, excitation_of, finite_or_none
-from bogiemon.judgement.running import choose_load
+from bogiemon.judgement.rules import Threshold
+from bogiemon.judgement.running import LoadChoice, choose_load
 from bogiemon.judgement.sensor_tracker import HealthState, HealthTracker
 from bogiemon.judgement.vocabulary import LoadSetting, LoadState, Mode
 from bogiemon.detection import BogieGeometry, ProcessingSettings, WindowIndicators
@@ -122,6 +123,27 @@ class SavedStateError(ValueError):
     """A saved judge state that does not decode (written by something else than a judge)."""
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """A window half judged (WindowJudge.prepare): its health, the sensor events, and when its
+    sensors allow judging it, its features and load state (choice None: not judgeable)."""
+
+    window: WindowIndicators
+    status: Status
+    health: WindowHealth
+    events: tuple[Event, ...]
+    features: WindowFeatures | None = None
+    choice: LoadChoice | None = None
+    # Judged through noise only the floor saw: the sensors' state is advanced in conclude(), once
+    # the decision says what the couplings showed.
+    through_noise: bool = False
+
+    @property
+    def judgeable(self) -> bool:
+        """Its sensors are sound and the running allows a judgement (a load state was chosen)."""
+        return self.choice is not None and self.choice.load is not None
+
+
 class WindowJudge:
     """Sensor health, gating, load state and the suspension decision for one window at a time.
 
@@ -176,44 +198,60 @@ class WindowJudge:
 
     def judge(self, window: WindowIndicators, status: Status = ALL_OK, gaps_last_hour: int = 0) -> WindowVerdict:
         """The window's verdict, its outcome counted."""
-        verdict = self._judge(window, status, gaps_last_hour)
-        why = {} if verdict.unfamiliar is None else {"unlike": verdict.unfamiliar}
-        said = self.coverage.update(window, verdict.judgement is not None, verdict.outcome is Outcome.UNFAMILIAR, why)
-        self.counts.count(verdict.outcome)
-        return dataclasses.replace(verdict, events=verdict.events + tuple(said)) if said else verdict
+        return self.conclude(self.prepare(window, status, gaps_last_hour))
 
-    def _judge(self, window: WindowIndicators, status: Status, gaps_last_hour: int) -> WindowVerdict:
+    def prepare(self, window: WindowIndicators, status: Status = ALL_OK, gaps_last_hour: int = 0) -> Prepared:
+        """The first half of judge(): the sensors' health (their state advanced), the features and
+        the load state, up to the decision; a wagon's judge (judgement/wagon.py) reads both bogies'
+        before either's decision. Every prepared window must be concluded, once, in order."""
         s = self.settings
         health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
         # Noise the floor alone saw cannot move the couplings judged (judgement/health.py, "A SENSOR
-        # FAULT NEVER HIDES A SUSPENSION FAULT"): the suspension is judged on them, the sensor told beside.
+        # FAULT NEVER HIDES A SUSPENSION FAULT"): the suspension is judged on them, and the sensor's
+        # state advanced once the decision is made, its SENSOR_FAULT saying what the couplings said.
         if s.health.judge_through_floor_noise and health.couplings_readable and not self.health.holds_judgement:
-            judged = self._judge_suspension(window, status, health, [])
-            sensor = self.health.update(window, health, holds=False, suspension=self._one_corner(judged))
-            return dataclasses.replace(judged, events=(*sensor, *judged.events))
+            return self._with_load(window, status, health, (), through_noise=True)
         events = self.health.update(window, health)
         # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
         # window's checks (noise that the track's own excitation hides) and still couple the modes.
         if not health.judgeable or self.health.holds_judgement:
-            return WindowVerdict(window, status, health, None, self.mode, tuple(events))
-        return self._judge_suspension(window, status, health, events)
+            return Prepared(window, status, health, tuple(events))
+        return self._with_load(window, status, health, tuple(events))
 
-    def _judge_suspension(self, window: WindowIndicators, status: Status, health: WindowHealth, events: list[Event]) -> WindowVerdict:
+    def _with_load(self, window: WindowIndicators, status: Status, health: WindowHealth, events: tuple[Event, ...], through_noise: bool = False) -> Prepared:
         s = self.settings
-
-        def verdict(**judged: Any) -> WindowVerdict:
-            return WindowVerdict(window, status, health, judged.pop("judgement", None), self.mode, tuple(events), **judged)
-
         features = WindowFeatures(window.spectra, s.geometry) if window.spectra is not None else None
         load_vector = finite_or_none(features.load) if features is not None else None
         choice = choose_load(s.load, load_vector, excitation_of(window), s.load_states, s.load_discriminant, s.load_model)
-        if choice.load is None:
-            return verdict(unfamiliar=choice.unjudged, features=features)
-        judgement, decided = self.decider.update(window, choice.load, choice.context(), features, choice.level_margin)
-        events = [*events, *decided]
-        return verdict(judgement=judgement, load=choice.load, p_full=choice.p_full, features=features)
+        return Prepared(window, status, health, events, features, choice, through_noise)
 
-    def _one_corner(self, verdict: WindowVerdict) -> dict[str, Any] | None:
+    def conclude(self, prepared: Prepared, extra: Mapping[str, tuple[float, Threshold]] | None = None) -> WindowVerdict:
+        """The second half of judge(): the decision (with `extra` judged values beside the window's
+        own, Decider.update), the sensors' state where it waited for it, the coverage, the outcome counted."""
+        verdict = self._decide(prepared, extra)
+        if prepared.through_noise:
+            sensor = self.health.update(prepared.window, prepared.health, holds=False, suspension=self._one_corner(verdict))
+            verdict = dataclasses.replace(verdict, events=(*sensor, *verdict.events))
+        unfamiliar = verdict.unfamiliar if verdict.outcome is Outcome.UNFAMILIAR else None
+        said = self.coverage.update(prepared.window, verdict.judgement is not None, unfamiliar)
+        self.counts.count(verdict.outcome)
+        return dataclasses.replace(verdict, events=verdict.events + tuple(said)) if said else verdict
+
+    def _decide(self, p: Prepared, extra: Mapping[str, tuple[float, Threshold]] | None) -> WindowVerdict:
+        events = list(p.events)
+
+        def verdict(**judged: Any) -> WindowVerdict:
+            return WindowVerdict(p.window, p.status, p.health, judged.pop("judgement", None), self.mode, tuple(events), **judged)
+
+        if p.choice is None:
+            return verdict()
+        if p.choice.load is None:
+            return verdict(unfamiliar=p.choice.unjudged, features=p.features)
+        judgement, decided = self.decider.update(p.window, p.choice.load, p.choice.context(), p.features, p.choice.level_margin, extra)
+        events += decided
+        return verdict(judgement=judgement, load=p.choice.load, p_full=p.choice.p_full, features=p.features)
+
+    def _one_corner(self, verdict: WindowVerdict) -> SuspensionHint | None:
         """What a judged window's couplings say of a one-corner suspension fault: the diagonal pair
         its shift's pitch-roll sign names, when the window is at warning level or above (None else)."""
         j, load = verdict.judgement, verdict.load
@@ -224,4 +262,4 @@ class WindowJudge:
         if not found.corners:
             return None
         score, _, alarm = j.headline()
-        return {"corners": [c.value for c in found.corners], "fused_score": score, "alarm": alarm, "best_match": found.best_match}
+        return SuspensionHint(tuple(c.value for c in found.corners), score, alarm, found.best_match)

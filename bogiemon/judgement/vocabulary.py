@@ -32,6 +32,14 @@ class LoadSetting(enum.StrEnum):
         return None if self is LoadSetting.AUTO else LoadState(self.value)
 
 
+class LoadSource(enum.StrEnum):
+    """How a window's load state was decided (judgement/running.py)."""
+
+    CONFIGURED = "configured"  # decision.load fixes it
+    COMMISSIONED = "commissioned"  # from the wagon's commissioned load states
+    ESTIMATED = "estimated"  # by the shipped load model (a load the wagon was not commissioned in)
+
+
 class Method(enum.StrEnum):
     """decision.method: how a window's level is decided (judgement/decision.py)."""
 

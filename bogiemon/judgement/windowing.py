@@ -106,9 +106,10 @@ class BlockWindows:
 
     def feed(self, block: Block) -> list[Windowed]:
         core = self.core
-        if core is None or core.settings.fs_hz != block.fs_hz or self._new_stream or block.gap_before:
+        new_stream = self._new_stream or block.new_stream
+        if core is None or core.settings.fs_hz != block.fs_hz or new_stream or block.gap_before:
             # A gap is a loss within one stream at one rate; a new stream or a new rate is not.
-            start = SegmentStart(block.start_s, block.fs_hz, gap=not self._new_stream and core is not None and core.settings.fs_hz == block.fs_hz)
+            start = SegmentStart(block.start_s, block.fs_hz, gap=not new_stream and core is not None and core.settings.fs_hz == block.fs_hz)
             if core is None or core.settings.fs_hz != block.fs_hz:
                 self.core = IndicatorStream(self.processing_at(block.fs_hz), self.geometry, block.start_s, self.clip_level_mps2)
             else:

@@ -134,7 +134,7 @@ class _Levels:
     windows: int
 
 
-def _levels(score_runs: Sequence[NDArray[np.float64]], confirm_k: int, confirm_n: int) -> _Levels:
+def score_levels(score_runs: Sequence[NDArray[np.float64]], confirm_k: int, confirm_n: int) -> _Levels:
     """Levels of a score judged k of n (SUSPECTED: suspect_k of n): from each run's sustained scores."""
     suspect_k = suspicion_k(confirm_k)
     confirming = [sustained_level(s, confirm_k, confirm_n) for s in score_runs if len(s) >= confirm_k]
@@ -257,7 +257,7 @@ def fit_fused(
             own = whitening_of(fit.covariance)
             scored += [_score(v, fit.center, own) / fit.level_factor for v in rest]
             trends += trend_runs([(v - fit.center) @ own.T for v in rest], processing.hop_s)
-        calibrated = _levels(scored, confirm_k, confirm_n)
+        calibrated = score_levels(scored, confirm_k, confirm_n)
         calibrated_trend = _levels_of([float(t.max()) for t in trends if len(t)], trends)
         # The population, leave one wagon out.
         everything = np.concatenate([np.concatenate(v) for v in by_wagon.values()])
@@ -267,7 +267,7 @@ def fit_fused(
             w_out = whitening_of(np.cov(others.T))
             pop_scored += [_score(v, others.mean(axis=0), w_out) for v in by_wagon[wagon]]
             pop_trends += trend_runs([(v - others.mean(axis=0)) @ w_out.T for v in by_wagon[wagon]], processing.hop_s)
-        population = _levels(pop_scored, confirm_k, confirm_n)
+        population = score_levels(pop_scored, confirm_k, confirm_n)
         population_trend = _levels_of([float(t.max()) for t in pop_trends if len(t)], pop_trends)
         out[load] = {
             "features": list(COUPLING_NAMES),

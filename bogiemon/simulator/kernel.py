@@ -29,9 +29,9 @@ except ImportError:  # the `sim` extra: a gateway install leaves the simulator o
 (
     V_MASS_C, V_PITCH_C, V_ROLL_C, V_MASS_F, V_PITCH_F, V_ROLL_F,
     V_HALF_CENTRES, V_HALF_WHEELBASE, V_HALF_BOXES, V_BOX_LEVER,
-    V_K_BOWL, V_C_BOWL, V_HALF_SB, V_K_SB, V_C_SB, V_GRAVITY, V_DS, V_DT,
+    V_K_BOWL, V_C_BOWL, V_HALF_SB, V_K_SB, V_C_SB, V_GRAVITY, V_DS, V_DT, V_CG_OFFSET,
     N_VEH,
-) = range(19)  # fmt: skip
+) = range(20)  # fmt: skip
 # Layout of a corner's row in `corner` (suspension.CornerSuspension.as_row).
 C_K_OUTER, C_K_INNER, C_CLEARANCE, C_FS, C_K_STICK, C_DAMPING = range(6)
 
@@ -77,14 +77,16 @@ def advance(
     n_speed: np.ndarray,  # (B,) points used in each profile
     rail_left: np.ndarray,  # (B, N) rail heights every ds (m)
     rail_right: np.ndarray,  # (B, N)
-    sensor_xy: np.ndarray,  # (B, 3, 2) sensor positions on the leading frame (m)
+    sensor_xy: np.ndarray,  # (B, 3, 2) sensor positions on each frame (m), the same named corners on both
     sos: np.ndarray,  # (n_sections, 6) anti-aliasing low-pass at the step rate (sensors.anti_alias_sos)
-    zi: np.ndarray,  # (B, n_sections, 2, 3) its state (transposed direct form II, as scipy's sosfilt)
+    zi: np.ndarray,  # (B, n_sections, 2, C) its state (transposed direct form II, as scipy's sosfilt)
     factor: int,  # keep every factor-th filtered sample (n_steps must be a multiple of it)
-    out: np.ndarray,  # (B, S, 3) specific force at the sensors (m/s^2), one row per kept sample
+    out: np.ndarray,  # (B, S, C) specific force at the sensors (m/s^2), one row per kept sample:
+    # C = 3, the leading frame's (a1..a3), or 6, then the trailing frame's (b1..b3)
 ) -> None:
     n_batch = q.shape[0]
     n_sections = sos.shape[0]
+    n_channels = out.shape[2]
     for b in numba.prange(n_batch):
         p = veh[b]
         m_c, i_cy, i_cx = p[V_MASS_C], p[V_PITCH_C], p[V_ROLL_C]
@@ -92,6 +94,8 @@ def advance(
         a, half_l, half_b, lever = p[V_HALF_CENTRES], p[V_HALF_WHEELBASE], p[V_HALF_BOXES], p[V_BOX_LEVER]
         k_bowl, c_bowl, y_sb, k_sb, c_sb = p[V_K_BOWL], p[V_C_BOWL], p[V_HALF_SB], p[V_K_SB], p[V_C_SB]
         g, dt = p[V_GRAVITY], p[V_DT]
+        # The bogie centres from the carbody's centre of mass (off centre when its ends are loaded unequally).
+        x_lead, x_trail = a - p[V_CG_OFFSET], -a - p[V_CG_OFFSET]
         inv_ds = 1.0 / p[V_DS]
         n_rail = rail_left.shape[1]
         offsets = np.array([0.0, 2.0 * half_l, 2.0 * a, 2.0 * a + 2.0 * half_l])
@@ -142,7 +146,7 @@ def advance(
             gen[0] = -m_c * g
             for bogie in range(2):
                 base = 3 + 3 * bogie
-                x_c = a if bogie == 0 else -a
+                x_c = x_lead if bogie == 0 else x_trail
                 zf, tf, pf = qb[base], qb[base + 1], qb[base + 2]
                 wz, wt, wp = vb[base], vb[base + 1], vb[base + 2]
                 fz = -m_f * g
@@ -198,8 +202,10 @@ def advance(
                 acc[base + 1] = gen[base + 1] / i_fy
                 acc[base + 2] = gen[base + 2] / i_fx
             keep = step % factor == 0
-            for s in range(3):
-                y = acc[3] + xy[s, 0] * acc[4] + xy[s, 1] * acc[5] + g
+            for s in range(n_channels):
+                base = 3 + 3 * (s // 3)
+                ch = s % 3
+                y = acc[base] + xy[ch, 0] * acc[base + 1] + xy[ch, 1] * acc[base + 2] + g
                 for sec in range(n_sections):
                     x = y
                     y = sos[sec, 0] * x + zb[sec, 0, s]
@@ -240,6 +246,7 @@ def pack_vehicle(params: Any, ds_m: float, dt_s: float) -> np.ndarray:
     veh[V_GRAVITY] = params.gravity_mps2
     veh[V_DS] = ds_m
     veh[V_DT] = dt_s
+    veh[V_CG_OFFSET] = params.carbody_centre_offset_m
     return veh
 
 

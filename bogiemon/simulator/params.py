@@ -62,6 +62,15 @@ class VehicleParameters:
     side_bearer_damping_n_s_per_m: float
     healthy_kz_n_per_m: float  # the paper's healthy corner stiffness for this load
     healthy_fs_n: float  # the paper's healthy sliding force for this load
+    # The carbody's centre of mass this far from mid-way between the bogie centres, towards the
+    # leading bogie (a wagon whose ends are loaded unequally); its inertias are about that point.
+    carbody_centre_offset_m: float = 0.0
+
+    @property
+    def bogie_centres_x_m(self) -> tuple[float, float]:
+        """The leading and the trailing bogie centre's x from the carbody's centre of mass."""
+        a = self.bogie_centre_distance_m / 2
+        return (a - self.carbody_centre_offset_m, -a - self.carbody_centre_offset_m)
 
     @property
     def sprung_mass_kg(self) -> float:
@@ -73,6 +82,14 @@ class VehicleParameters:
         """Distance of each axle behind the wagon's first axle: axles 1, 2 (leading bogie), 3, 4."""
         wb, bc = self.wheelbase_m, self.bogie_centre_distance_m
         return (0.0, wb, bc, bc + wb)
+
+
+def centre_offset_m(leading_share: float, bogie_centre_distance_m: float) -> float:
+    """The carbody's centre-of-mass offset (towards the leading bogie) that puts `leading_share` of
+    its weight on the leading bogie: moments about it, share = (a + e) / 2a with a half the distance."""
+    if not 0.0 < leading_share < 1.0:
+        raise SimulationError(f"a bogie's share of the carbody's weight lies between 0 and 1, got {leading_share:g}")
+    return (2.0 * leading_share - 1.0) * bogie_centre_distance_m / 2.0
 
 
 def vehicle_parameters(parameter_set: dict[str, Any], load: str) -> VehicleParameters:
@@ -109,6 +126,8 @@ def vehicle_parameters(parameter_set: dict[str, Any], load: str) -> VehicleParam
             side_bearer_damping_n_s_per_m=float(sb["damping_n_s_per_m"]),
             healthy_kz_n_per_m=float(cases["healthy"][load]["Kz"]),
             healthy_fs_n=float(cases["healthy"][load]["Fs"]),
+            # Not in the shipped file: the wagon's ends loaded alike.
+            carbody_centre_offset_m=float(body.get("centre_of_mass_offset_m", 0.0)),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise SimulationError(f"vehicle parameter set is incomplete or malformed: {exc!r}") from None

@@ -18,7 +18,9 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """The recording of one scenario: time_s (n,) from 0 and accel_mps2 (n, 3), channels a1..a3."""
+    """The recording of one scenario: time_s (n,) from 0 and accel_mps2 (n, 3 x scenario.bogies):
+    a1..a3 on bogie 1, the leading bogie in the direction of travel, then (two bogies) b1..b3 on
+    bogie 2 at the same named corners of its own frame (both frames' x towards the direction of travel)."""
 
     scenario: Scenario
     time_s: NDArray[np.float64]

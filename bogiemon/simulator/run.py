@@ -2,6 +2,7 @@
 
     result = simulate(Scenario(load="full", faults=(parse_fault("type_a:rear_outer:0.0@leading-left"),)))
     results = simulate_batch([Scenario(seed=s) for s in range(8)])   # much faster per scenario
+    wagon = simulate(Scenario(bogies=2, faults=(parse_fault("type_a:rear_outer:0.0@2:leading-left"),)))  # a1..a3, b1..b3
     write_recording(result, "run.csv")                               # run.csv + run.json
     again = rerun_sidecar("run.json")                                # the same samples
 
@@ -9,7 +10,8 @@ Each run starts with the wagon in static equilibrium on a level stretch; the irr
 in over PREROLL_RAMP_M and the run continues PREROLL_SETTLE_M further before the recording's
 time 0 (the pre-roll, at the profile's initial speed), so the recording holds no start-up
 transient. All randomness comes from the scenario's seed: the track from one child of
-numpy.random.SeedSequence(seed), the sensor noise from the other. Scenarios of model "b"
+numpy.random.SeedSequence(seed), the sensor noise from the other, bogie 2's (a run of two bogies)
+from a third. Scenarios of model "b"
 (Scenario.model) run through simulator/model_b instead, with its own pre-roll and seeds.
 """
 
@@ -56,6 +58,9 @@ class _Prepared:
     preroll_n: int
     total_n: int  # output samples including the pre-roll
     sensor_rng: np.random.Generator
+    # Bogie 2's sensors' noise (a run of two bogies), a stream apart: bogie 1's channels of a
+    # two-bogie run are exactly the one-bogie run's.
+    sensor_2_rng: np.random.Generator
     healthy_model: VehicleModel  # the suspension before the fault onset (model itself when onset is 0): the standing faults only
 
     @property
@@ -77,7 +82,8 @@ def preroll_s(scenario: Scenario, model: VehicleModel) -> float:
 def _prepare(scenario: Scenario) -> _Prepared:
     assert scenario.parameters is not None
     model = build_model(scenario.parameters, scenario.load, scenario.standing_faults + scenario.faults)
-    track_seed, sensor_seed = np.random.SeedSequence(scenario.seed).spawn(2)
+    # spawn(3)'s first two children are spawn(2)'s: the one-bogie streams as they always were.
+    track_seed, sensor_seed, sensor_2_seed = np.random.SeedSequence(scenario.seed).spawn(3)
     pre_s = preroll_s(scenario, model)
     preroll_n = int(round(pre_s * scenario.fs_hz))
     first_axle_m = model.params.axle_offsets_m[-1]
@@ -110,6 +116,7 @@ def _prepare(scenario: Scenario) -> _Prepared:
         preroll_n=preroll_n,
         total_n=preroll_n + scenario.n_samples,
         sensor_rng=np.random.default_rng(sensor_seed),
+        sensor_2_rng=np.random.default_rng(sensor_2_seed),
     )
 
 
@@ -150,13 +157,13 @@ def simulate_batch(scenarios: Sequence[Scenario], progress: Progress | None = No
     Scenarios of the same model (Scenario.model), sample rate and integration step share kernel
     calls; each result is exactly what simulate() gives for that scenario alone.
     """
-    groups: dict[tuple[str, float, int], list[int]] = {}
+    groups: dict[tuple[str, float, int, int], list[int]] = {}
     for i, s in enumerate(scenarios):
-        groups.setdefault((s.model, s.fs_hz, s.oversampling), []).append(i)
+        groups.setdefault((s.model, s.fs_hz, s.oversampling, s.bogies), []).append(i)
     results: list[SimulationResult | None] = [None] * len(scenarios)
     total_work = sum(float(s.duration_s) for s in scenarios) or 1.0
     done_work = 0.0
-    for (model, _, _), indices in groups.items():
+    for (model, _, _, _), indices in groups.items():
         group = [scenarios[i] for i in indices]
         weight = sum(s.duration_s for s in group) / total_work
 
@@ -181,6 +188,7 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
     n_batch = len(preps)
     fs_hz, factor = group[0].fs_hz, group[0].oversampling
     dt_s = group[0].integration_step_s
+    n_channels = 3 * group[0].bogies
 
     q = np.array([p.rest.q for p in preps])
     v = np.array([p.rest.v for p in preps])
@@ -201,12 +209,12 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
     sensor_xy = np.array([p.scenario.geometry.positions_m() for p in preps])
 
     chunk_n = max(1, int(round(CHUNK_S * fs_hz)))
-    out = np.empty((n_batch, chunk_n, 3))
+    out = np.empty((n_batch, chunk_n, n_channels))
     sos = anti_alias_sos(fs_hz * factor, fs_hz) if factor > 1 else kernel.IDENTITY_SOS
     # The filter starts in steady state for the first sample: the wagon at rest reads +g.
     g = np.array([p.model.params.gravity_mps2 for p in preps])
     zi_unit = signal.sosfilt_zi(sos)[None, :, :, None]  # (1, n_sections, 2, 1)
-    zi = np.ascontiguousarray(np.broadcast_to(zi_unit * g[:, None, None, None], (n_batch, sos.shape[0], 2, 3)))
+    zi = np.ascontiguousarray(np.broadcast_to(zi_unit * g[:, None, None, None], (n_batch, sos.shape[0], 2, n_channels)))
     remaining = np.array([p.total_n for p in preps], dtype=np.int64)  # output samples
     total = int(remaining.sum())
     pieces: list[list[NDArray[np.float64]]] = [[] for _ in preps]
@@ -230,7 +238,11 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
     results = []
     for b, p in enumerate(preps):
         accel = np.concatenate(pieces[b])[p.preroll_n : p.total_n]
-        accel = p.scenario.sensor.apply(accel, p.sensor_rng)
+        measured = p.scenario.sensor.apply(accel[:, :3], p.sensor_rng)
+        if n_channels == 6:
+            other = p.scenario.sensor_bogie_2 or p.scenario.sensor
+            measured = np.hstack([measured, other.apply(accel[:, 3:], p.sensor_2_rng)])
+        accel = measured
         results.append(
             SimulationResult(
                 scenario=p.scenario,
@@ -246,6 +258,8 @@ def _run_group(group: list[Scenario], report: Progress) -> list[SimulationResult
 
 def write_recording(result: SimulationResult, csv_path: str | Path) -> Path:
     """Write FILE.csv (the recording) and FILE.json (its scenario); returns the sidecar's path."""
+    if result.accel_mps2.shape[1] != 3:
+        raise SimulationError("a recording holds one bogie's a1..a3 for now: simulate one bogie to write it, or use the result's arrays")
     write_csv_recording(csv_path, result.time_s, result.accel_mps2)
     json_path = sidecar_path(csv_path)
     write_sidecar(json_path, result.scenario, {**result.derived, "recording": Path(csv_path).name})

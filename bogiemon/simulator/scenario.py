@@ -27,6 +27,9 @@ from bogiemon.simulator.track import TRACKS
 SIDECAR_FORMAT = "bogiemon-simulation/1"
 MONITORED_BOGIE = "leading"  # the sensors sit on the wagon's leading bogie
 MAX_SPEED_KMH = 200.0
+# Bogies recorded: 1, the leading bogie in the direction of travel (a1..a3); 2, both (a1..a3 then
+# b1..b3: bogie 2's sensors at the same named corners of its own frame, seen in the direction of travel).
+BOGIE_COUNTS = (1, 2)
 # The wagon models: "a" (simulator/vehicle.py, docs/simulator.md) and "b", built independently of it
 # (simulator/model_b, docs/simulator-b.md) so that what is fitted on one can be judged on the other.
 MODELS = ("a", "b")
@@ -140,6 +143,11 @@ class Scenario:
     standing_faults: tuple[Fault, ...] = ()
     # Which wagon model runs the scenario (MODELS); `parameters` must be that model's set.
     model: str = "a"
+    # Bogies recorded (BOGIE_COUNTS): the result has 3 x bogies channels.
+    bogies: int = 1
+    # Model A: bogie 2's sensors, other parts than bogie 1's (None: errors like `sensor`'s, their
+    # noise drawn apart). Model B draws bogie 2's parts itself (simulator/model_b/sensors.py other_part).
+    sensor_bogie_2: SensorModel | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -173,7 +181,14 @@ class Scenario:
             raise SimulationError(f"integration step must lie in (0, 0.002] s, got {self.max_step_s:g}")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
             raise SimulationError(f"seed must be a whole number >= 0, got {self.seed!r}")
-        s = self.sensor
+        if self.bogies not in BOGIE_COUNTS or isinstance(self.bogies, bool):
+            raise SimulationError(f"bogies recorded must be 1 or 2, got {self.bogies!r}")
+        if self.sensor_bogie_2 is not None and (self.bogies != 2 or self.model != "a"):
+            raise SimulationError("sensor_bogie_2 describes model A's second bogie's sensors: give it with bogies=2 on model a")
+        for s in (self.sensor,) if self.sensor_bogie_2 is None else (self.sensor, self.sensor_bogie_2):
+            self._check_sensor(s)
+
+    def _check_sensor(self, s: SensorModel) -> None:
         if not (s.noise_mps2 >= 0 and s.quantum_mps2 >= 0 and len(s.bias_mps2) == 3):
             raise SimulationError("sensor noise and quantum must be >= 0 m/s^2 and the bias three values")
         if len(s.gain) != 3 or not all(math.isfinite(g) and g != 0 for g in s.gain):
@@ -208,6 +223,14 @@ class Scenario:
         return int(round(self.fault_onset_s * self.fs_hz))
 
     def to_dict(self) -> dict[str, Any]:
+        out = self._to_dict()
+        if self.bogies != 1:  # a one-bogie sidecar stays as it was
+            out["bogies"] = self.bogies
+        if self.sensor_bogie_2 is not None:
+            out["sensor_bogie_2"] = _sensor_dict(self.sensor_bogie_2)
+        return out
+
+    def _to_dict(self) -> dict[str, Any]:
         return {
             "load": self.load,
             "speed_profile": [list(p) for p in self.speed.points],
@@ -218,14 +241,7 @@ class Scenario:
             "fault_onset_s": self.fault_onset_s,
             "fs_hz": self.fs_hz,
             "geometry": _geometry_dict(self.geometry),
-            "sensor": {
-                "noise_mps2": self.sensor.noise_mps2,
-                "bias_mps2": list(self.sensor.bias_mps2),
-                "quantum_mps2": self.sensor.quantum_mps2,
-                "gain": list(self.sensor.gain),
-                "variant": self.sensor.variant,
-                "element_noise_mps2": list(self.sensor.element_noise_mps2),
-            },
+            "sensor": _sensor_dict(self.sensor),
             "max_step_s": self.max_step_s,
             "parameters": self.parameters,
             "standing_faults": [f.to_dict() for f in self.standing_faults],
@@ -251,26 +267,43 @@ class Scenario:
                     sensor_spacing_m=float(geometry["sensor_spacing_m"]),
                     corners=tuple(Corner(c) for c in geometry["corners"]),  # type: ignore[arg-type]
                 ),
-                sensor=SensorModel(
-                    noise_mps2=float(sensor["noise_mps2"]),
-                    bias_mps2=tuple(float(b) for b in sensor["bias_mps2"]),  # type: ignore[arg-type]
-                    quantum_mps2=float(sensor["quantum_mps2"]),
-                    # Sidecars written before the gain existed: exact sensors.
-                    gain=tuple(float(g) for g in sensor.get("gain", (1.0, 1.0, 1.0))),  # type: ignore[arg-type]
-                    # Sidecars written before the sensor variants: the standard part, no element noise.
-                    variant=str(sensor.get("variant", "standard")),
-                    element_noise_mps2=tuple(float(n) for n in sensor.get("element_noise_mps2", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
-                ),
+                sensor=_sensor_of(sensor),
                 max_step_s=float(data["max_step_s"]),
                 parameters=data["parameters"],
                 standing_faults=tuple(Fault.from_dict(f) for f in data.get("standing_faults", ())),
-                # Sidecars written before model B existed are model A's.
+                # Sidecars written before model B existed are model A's, before two bogies of one.
                 model=str(data.get("model", "a")),
+                bogies=int(data.get("bogies", 1)),
+                sensor_bogie_2=_sensor_of(data["sensor_bogie_2"]) if data.get("sensor_bogie_2") is not None else None,
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, SimulationError):
                 raise
             raise SimulationError(f"not a complete scenario: {exc!r}") from None
+
+
+def _sensor_dict(sensor: SensorModel) -> dict[str, Any]:
+    return {
+        "noise_mps2": sensor.noise_mps2,
+        "bias_mps2": list(sensor.bias_mps2),
+        "quantum_mps2": sensor.quantum_mps2,
+        "gain": list(sensor.gain),
+        "variant": sensor.variant,
+        "element_noise_mps2": list(sensor.element_noise_mps2),
+    }
+
+
+def _sensor_of(sensor: dict[str, Any]) -> SensorModel:
+    return SensorModel(
+        noise_mps2=float(sensor["noise_mps2"]),
+        bias_mps2=tuple(float(b) for b in sensor["bias_mps2"]),  # type: ignore[arg-type]
+        quantum_mps2=float(sensor["quantum_mps2"]),
+        # Sidecars written before the gain existed: exact sensors.
+        gain=tuple(float(g) for g in sensor.get("gain", (1.0, 1.0, 1.0))),  # type: ignore[arg-type]
+        # Sidecars written before the sensor variants: the standard part, no element noise.
+        variant=str(sensor.get("variant", "standard")),
+        element_noise_mps2=tuple(float(n) for n in sensor.get("element_noise_mps2", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+    )
 
 
 def bogiemon_version() -> str:

@@ -28,7 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
+
+# scipy.signal (0.9 s to import) where a filter is designed or run: `bogiemon simulate` checks its
+# arguments, building the scenario, without it.
 
 ANTI_ALIAS_ORDER = 10
 ANTI_ALIAS_STOPBAND_DB = 80.0
@@ -36,6 +38,8 @@ ANTI_ALIAS_STOPBAND_DB = 80.0
 
 def anti_alias_sos(fs_in_hz: float, fs_out_hz: float) -> NDArray[np.float64]:
     """Second-order sections of the decimation filter: stopband from fs_out / 2."""
+    from scipy import signal
+
     return signal.cheby2(ANTI_ALIAS_ORDER, ANTI_ALIAS_STOPBAND_DB, fs_out_hz / 2, fs=fs_in_hz, output="sos")
 
 
@@ -58,6 +62,8 @@ class Decimator:
         self._zi: NDArray[np.float64] | None = None
 
     def process(self, block: NDArray[np.float64]) -> NDArray[np.float64]:
+        from scipy import signal
+
         x = np.asarray(block, dtype=np.float64)
         if x.shape[0] % self.factor:
             raise ValueError(f"block of {x.shape[0]} samples is not a multiple of {self.factor}")
@@ -85,12 +91,16 @@ class SensorVariant:
 
     def sos(self) -> NDArray[np.float64] | None:
         """Its low-pass at the output rate (frequencies as fractions of it), None without one."""
+        from scipy import signal
+
         if self.order == 0:
             return None
         return signal.butter(self.order, 2.0 * self.corner_fraction_of_fs, output="sos")
 
     def response(self, f_over_fs: NDArray[np.float64]) -> NDArray[np.complex128]:
         """Its filter's complex response at frequencies given as fractions of the output rate."""
+        from scipy import signal
+
         sos = self.sos()
         f = np.asarray(f_over_fs, dtype=np.float64)
         if sos is None:
@@ -142,6 +152,8 @@ class SensorModel:
 
     def apply(self, accel_mps2: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.float64]:
         """(n, 3) ideal specific force in, (n, 3) as the sensors report it out."""
+        from scipy import signal
+
         out = accel_mps2 if self.gain == (1.0, 1.0, 1.0) else accel_mps2 * np.asarray(self.gain)
         out = out + np.asarray(self.bias_mps2)
         sos = self.part.sos()

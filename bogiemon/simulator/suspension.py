@@ -39,6 +39,9 @@ from bogiemon.simulator.params import VehicleParameters
 SPRING_POSITIONS = ("front_outer", "front_inner", "rear_outer", "rear_inner")
 FAULT_KINDS = ("type_a", "type_b", "custom")
 BOGIES = ("leading", "trailing")
+# A fault spec names the bogie by its number ('@2:leading-left'): 1 the leading bogie in the
+# direction of travel, 2 the other (the recording's a1..a3 and b1..b3); the older names stay aliases.
+BOGIE_PREFIXES = {"1": "leading", "2": "trailing", "leading-bogie": "leading", "trailing-bogie": "trailing"}
 # Corner order within a bogie everywhere in the simulator (the kernel's arrays follow it).
 CORNER_ORDER: tuple[Corner, Corner, Corner, Corner] = (
     Corner.LEADING_LEFT,
@@ -148,8 +151,13 @@ class Fault:
 
     @property
     def where(self) -> str:
-        """The fault's corner: 'leading-left' on the monitored (leading) bogie, else 'trailing-bogie:...'."""
-        return self.corner.value if self.bogie == "leading" else f"trailing-bogie:{self.corner.value}"
+        """The fault's corner: 'leading-left' on bogie 1 (the leading one), '2:leading-left' on bogie 2."""
+        return self.corner.value if self.bogie == "leading" else f"2:{self.corner.value}"
+
+    @property
+    def bogie_number(self) -> int:
+        """1: the leading bogie in the direction of travel (a1..a3), 2: the other (b1..b3)."""
+        return BOGIES.index(self.bogie) + 1
 
     def spec(self) -> str:
         """The fault in the command line's syntax, e.g. 'type_a:rear_outer:0.0@leading-left'."""
@@ -200,8 +208,9 @@ def _number(text: str, what: str, spec: str) -> float:
 def parse_fault(spec: str) -> Fault:
     """Parse KIND:POSITION:SEVERITY@CORNER (or custom:KZ_N_PER_M:FS_N@CORNER).
 
-    CORNER is a corner of the monitored, leading bogie (leading-left, ..., trailing-right), or
-    trailing-bogie:CORNER for the wagon's other bogie (leading-bogie:CORNER is the default).
+    CORNER is a corner of bogie 1, the leading one in the direction of travel (leading-left, ...,
+    trailing-right), or 2:CORNER for the wagon's other bogie, at the same named corner of its own
+    frame (1:CORNER is the default; trailing-bogie: and leading-bogie: are the older names).
     """
     text = spec.strip()
     if text.count("@") != 1:
@@ -212,9 +221,9 @@ def parse_fault(spec: str) -> Fault:
     bogie = "leading"
     if ":" in where:
         bogie_name, where = where.split(":", 1)
-        bogie = {"leading-bogie": "leading", "trailing-bogie": "trailing"}.get(bogie_name, "")
+        bogie = BOGIE_PREFIXES.get(bogie_name, "")
         if not bogie:
-            raise SimulationError(f"fault '{spec}': unknown bogie '{bogie_name}': use leading-bogie or trailing-bogie")
+            raise SimulationError(f"fault '{spec}': unknown bogie '{bogie_name}': use 1 or 2 (e.g. @2:leading-left)")
     try:
         corner = Corner(where)
     except ValueError:

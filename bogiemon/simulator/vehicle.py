@@ -5,8 +5,10 @@ Degrees of freedom (9; small motions about the free-length configuration, z up, 
   3..5  leading bogie frame bounce, pitch, roll (the monitored bogie)
   6..8  trailing bogie frame bounce, pitch, roll
 A point (x, y) of a body moves by z + x theta + y phi (detection/kinematics.py's convention).
-The carbody's x runs from its centre towards the leading bogie (at x = +a), each frame's from
-its centre towards its leading axle (at x = +l); y towards the left rail.
+The carbody's x runs from its centre of mass towards the leading bogie (at x = +a, the bogies
+at +/-a; at a - e and -a - e when the ends are loaded unequally, VehicleParameters'
+carbody_centre_offset_m = e), each frame's from its centre towards its leading axle (at x = +l);
+y towards the left rail.
 
 Forces (generalised force Q = sum of G^T F over the elements, with G the element's row):
   - primary suspension at each of the 8 axle boxes (suspension.py), between the axle box, whose
@@ -81,9 +83,8 @@ class VehicleModel:
 
     def bowl_rows(self) -> FloatArray:
         """(2, 9): row j maps q to the compression of bogie j's centre bowl (frame up minus carbody)."""
-        a = self.params.bogie_centre_distance_m / 2
         rows = np.zeros((2, N_DOF))
-        for bogie, x in enumerate((a, -a)):
+        for bogie, x in enumerate(self.params.bogie_centres_x_m):
             rows[bogie, 3 + 3 * bogie] = 1.0
             rows[bogie, 0] = -1.0
             rows[bogie, 1] = -x
@@ -91,10 +92,9 @@ class VehicleModel:
 
     def side_bearer_rows(self) -> FloatArray:
         """(4, 9): bogie j's left (2j) and right (2j + 1) side bearers' compressions."""
-        a = self.params.bogie_centre_distance_m / 2
         y_sb = self.params.side_bearer_spacing_m / 2
         rows = np.zeros((4, N_DOF))
-        for bogie, x in enumerate((a, -a)):
+        for bogie, x in enumerate(self.params.bogie_centres_x_m):
             for side, y in enumerate((y_sb, -y_sb)):
                 r = rows[2 * bogie + side]
                 r[3 + 3 * bogie] = 1.0

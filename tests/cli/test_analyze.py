@@ -136,8 +136,9 @@ def test_analyze_loads_neither_scipy_nor_pandas_nor_the_daemons_logging(tmp_path
     rng = np.random.default_rng(0)
     path = tmp_path / f"run{suffix}"
     write_recording(path, np.arange(1400) / 100.0, rng.standard_normal((1400, 3)) + 9.81)
+    # Without the mf4 extra: python-can imports asammdf (and pandas) wherever it is installed.
     code = (
-        "import contextlib, io, json, sys\nfrom bogiemon.cli.main import main\n"
+        "import contextlib, io, json, sys\nsys.modules['asammdf'] = None\nfrom bogiemon.cli.main import main\n"
         f"with contextlib.redirect_stdout(io.StringIO()):\n    assert main(['analyze', {str(path)!r}, '--config', {str(config)!r}]) == 0\n"
         "print(json.dumps(sorted(sys.modules)))"
     )

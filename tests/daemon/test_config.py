@@ -43,7 +43,7 @@ def test_sensor_corners_reach_the_geometry() -> None:
         ("[processing]\nhop_s = 7\n", "processing: window 120 s must be a whole number of hops (7 s): at 500 Hz that is 60000 samples and hops of 3500"),
         ("[processing]\nmax_lag_s = 120\n", "processing: max_lag_s (120 s, 60000 samples at 500 Hz) must be shorter than the window (60000 samples)"),
         ("[processing]\nfs_hz = 16\n", "processing: lowpass_hz (10 Hz) must lie between 0 and Nyquist (fs_hz / 2 = 8 Hz)"),
-        ("[processing]\nhighpass_order = 'two'\n", "processing.highpass_order: Input should be a valid integer"),
+        ("[processing]\nhighpass_order = 'two'\n", "processing.highpass_order: expected a number, not a string (no quotes around a number) (got 'two')"),
         ('[sensors]\na1 = "up"\n', "sensors.a1: Input should be 'leading-left', 'leading-right', 'trailing-left' or 'trailing-right', got 'up'"),
         ('[sensors]\na2 = "leading-left"\n', "sensors: the three sensors must sit at three different corners"),
         ("[geometry]\nwheelbase_m = 18.0\n", "geometry.wheelbase_m: Input should be less than 5 (got 18.0)"),

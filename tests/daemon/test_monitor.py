@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import parse_config
-from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.events import EventKind, SensorFaultDetails
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.daemon.sinks import EventSink, MemorySink
 from bogiemon.daemon.store import EventStore
 from bogiemon.judgement.vocabulary import LoadState
 from tests.daemon.synthetic import as_blocks, bogie_accel, short_windows_config
+from tests.judgement.event_examples import details_as
 
 CONFIG = parse_config(short_windows_config(clear_after_windows=2), "test")
 
@@ -53,7 +54,7 @@ def test_a_flat_channel_is_a_sensor_fault_never_a_suspension_alarm(tmp_path: Pat
     accel[:, 0] = 9.81  # a1 frozen: pitch and roll now share -a3 and -a2 terms and correlate
     events = feed_all(make_monitor(tmp_path), as_blocks(accel))
     assert kinds(events) == [EventKind.SENSOR_FAULT]
-    assert events[0].details["problems"] == {"a1": ["flat", "stuck"]}
+    assert details_as(events[0], SensorFaultDetails).problems == {"a1": ("flat", "stuck")}
 
 
 def test_standstill_is_gated_without_events(tmp_path: Path) -> None:

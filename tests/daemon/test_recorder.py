@@ -13,7 +13,9 @@ import pytest
 import structlog
 
 from bogiemon.daemon.config import BogiemonConfig, load_config, parse_config
-from bogiemon.judgement.events import EventKind
+from bogiemon.detection.kinematics import Corner
+from bogiemon.judgement.events import ConfirmedDetails, EventKind, Trigger
+from tests.judgement.event_examples import details_as
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.judgement.verdict import WindowVerdict
 from bogiemon.daemon.recorder import Recorder, RecorderSettings
@@ -271,6 +273,28 @@ def test_periodic_recordings_hold_the_periodic_s_after_every_period_of_running(t
         np.testing.assert_allclose(rec.accel_mps2, accel[first : first + 300], rtol=0, atol=ACCEL_TOLERANCE_MPS2)
 
 
+def test_periodic_recordings_keep_their_period_when_a_block_holds_the_end_of_one_and_the_start_of_the_next(tmp_path: Path) -> None:
+    # The fuzz finding (recorder-disk, seed 17 input 182): blocks of 2 s, a recording of 2.6 s every
+    # 3.34 s. The next one started only in the block after the last one ended, later each time,
+    # until a period passed without one: 13 written for 15 periods.
+    accel = bogie_accel(51, seed=1)
+    period_n = 333 + 0.618  # samples: never a sample's time exactly
+    extra = f"periodic_every_h = {period_n / FS_HZ / 3600!r}\nperiodic_s = 2.6\n"
+    run = Run(tmp_path, recorder_config(tmp_path / "rec", extra))
+    for block in as_blocks(accel, start_s=START_S, block_n=200):
+        run.feed([block])
+        assert run.recorder.wait_written()  # a queue of 4 would drop some, as fast as they come here
+    run.recorder.close()
+    names = recordings(tmp_path / "rec")
+    firsts = [int(np.ceil(k * period_n)) for k in range(1, 16)]  # the first sample after every period
+    assert len(names) == run.recorder.counters.periodic_written == 15
+    for first, name in zip(firsts, names, strict=True):
+        rec = read_csv_recording(tmp_path / "rec" / name)
+        n = min(260, accel.shape[0] - first)
+        np.testing.assert_allclose(rec.time_s, START_S + np.arange(first, first + n) / FS_HZ, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(rec.accel_mps2, accel[first : first + n], rtol=0, atol=ACCEL_TOLERANCE_MPS2)
+
+
 def test_a_periodic_recording_cut_by_a_gap_is_written_up_to_it(tmp_path: Path) -> None:
     accel = bogie_accel(10, seed=1)
     blocks = as_blocks(accel, start_s=START_S, gap_at={800})  # a gap at 8 s, inside the recording from 7.2 s
@@ -377,7 +401,7 @@ def test_the_confirmed_snapshot_of_a_broken_spring_replayed_alone_from_a_fresh_s
     run.feed(blocks)
     run.recorder.close()
     (confirmed,) = [e for e in run.events if e.kind is EventKind.CONFIRMED]
-    assert confirmed.details["trigger"] == "windows"
+    assert details_as(confirmed, ConfirmedDetails).trigger is Trigger.WINDOWS
     (snapshot,) = [tmp_path / "rec" / n for n in recordings(tmp_path / "rec") if n.endswith("_confirmed.csv.gz")]
     recording = read_csv_recording(snapshot)
     assert recording.time_s[0] > start_s + 1.0  # cut: the lead-in before the confirming windows, not the whole run
@@ -389,7 +413,9 @@ def test_the_confirmed_snapshot_of_a_broken_spring_replayed_alone_from_a_fresh_s
     assert replayed.time_s == pytest.approx(confirmed.time_s, abs=1e-3)  # at the same window
     # The same diagnosis offline as onboard; its corner the broken spring's, or "unknown" where the
     # three confirming windows' 4-8 Hz couplings do not single it out (judgement/diagnosis.py).
-    assert replayed.details["diagnosis"] == confirmed.details["diagnosis"]
-    assert confirmed.details["diagnosis"]["corners"] in (["leading-left", "trailing-right"], [])
-    assert confirmed.details["diagnosis"]["best_match"].endswith("(leading-left if softer)")
-    assert replayed.details["alarm_windows"] == confirmed.details["alarm_windows"]
+    onboard, offline = details_as(confirmed, ConfirmedDetails), details_as(replayed, ConfirmedDetails)
+    assert offline.diagnosis == onboard.diagnosis and onboard.diagnosis is not None
+    assert onboard.diagnosis.corners in ((Corner.LEADING_LEFT, Corner.TRAILING_RIGHT), ())
+    said = "(leading-left if softer)" if onboard.diagnosis.corners else "no pair named"  # an unknown corner names no pair
+    assert onboard.diagnosis.best_match.endswith(said)
+    assert offline.alarm_windows == onboard.alarm_windows

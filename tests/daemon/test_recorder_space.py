@@ -8,6 +8,7 @@ The tmpfs tests need root (mount); elsewhere they are skipped and say so.
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
 import os
@@ -30,7 +31,8 @@ from bogiemon.daemon import recorder as recorder_module
 from bogiemon.daemon.config import BogiemonConfig, parse_config
 from bogiemon.daemon.delivery.status import status_from_monitor
 from bogiemon.daemon.messages import encode_status
-from bogiemon.judgement.events import Event, EventKind, Severity
+from bogiemon.daemon.event_json import event_body
+from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.monitor import STATE_KEY, Monitor
 from bogiemon.daemon.recorder import Recorder, RecorderSettings, keep_the_reserve_free
 from bogiemon.daemon.recorder_space import (
@@ -47,6 +49,7 @@ from bogiemon.daemon.store import DB_NAME, EventStore, StoreError
 from bogiemon.drivers.base import Block, MemorySource
 from bogiemon.drivers.recording import write_csv_recording
 from tests.daemon.synthetic import as_blocks, bogie_accel, short_windows_config
+from tests.judgement.event_examples import event_of
 
 START_S = 1.7e9
 MIB = 1 << 20
@@ -251,12 +254,12 @@ def test_the_reserve_holds_what_the_event_store_takes_for_its_wal_events_and_sta
         return main_file.stat().st_size
 
     empty = commit_all(lambda store, i: None, 0)
-    with_events = commit_all(lambda store, i: store.append([Event.from_dict({**confirmed.as_dict(), "event_id": f"e{i}"})], state=state), events_n)
+    with_events = commit_all(lambda store, i: store.append([dataclasses.replace(confirmed, event_id=f"e{i}")], state=state), events_n)
     with_status = commit_all(lambda store, i: store.outbox.queue_status(1.8e9 + i, status), status_n)
     per_event, per_status = (with_events - empty) / events_n, (with_status - with_events) / status_n
     # Measured here: the WAL at most 4 152 992 B; 860 B an event of 711 B with its state of 844 B;
     # 819 B a status message of 795 B; the store took 6.5 MB at most.
-    assert len(json.dumps(confirmed.as_dict())) > 600 and len(json.dumps(state)) > 600 and len(status) > 600
+    assert len(json.dumps(event_body(confirmed))) > 600 and len(json.dumps(state)) > 600 and len(status) > 600
     assert 3.9e6 < peak_wal < STORE_WAL_BYTES - 32 * 1024  # the WAL's ceiling, with its 32 KiB -shm beside it
     assert 700 < per_event <= STORE_EVENT_BYTES and 700 < per_status <= STORE_STATUS_BYTES, (per_event, per_status)
     assert peak <= STORE_WAL_BYTES + events_n * STORE_EVENT_BYTES + status_n * STORE_STATUS_BYTES
@@ -442,7 +445,7 @@ def test_before_the_store_opens_the_reserve_is_given_back_on_a_disk_filled_to_th
     (line,) = [e for e in logs if e["event"] == "deleted the oldest recordings to keep the event store's reserve free"]
     assert line["files"] == len(earlier) - len(kept) and line["free_bytes"] == free_bytes(disk)
     store = EventStore(state)
-    store.append([Event(time_s=1.8e9, kind=EventKind.CONFIRMED, severity=Severity.ALARM, config_hash="x")])
+    store.append([event_of(EventKind.CONFIRMED, 1.8e9, config_hash="x")])
     store.close()
 
 

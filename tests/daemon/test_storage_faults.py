@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import parse_config
-from bogiemon.judgement.events import Event, EventKind, Severity
+from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.logs import configure_logging
 from bogiemon.daemon.monitor import Monitor
 from bogiemon.judgement.verdict import WindowVerdict
@@ -34,6 +34,7 @@ from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
 from bogiemon.drivers.base import MemorySource
 from bogiemon.drivers.recording import write_csv_recording
 from tests.daemon.synthetic import FS_HZ, as_blocks, bogie_accel, short_windows_config
+from tests.judgement.event_examples import CHILD_EVENT, CHILD_IMPORTS, event_of
 
 BOGIEMON = [sys.executable, "-m", "bogiemon.cli.main"]
 CONFIG_TEXT = short_windows_config(clear_after_windows=2)
@@ -196,7 +197,7 @@ def test_the_replay_command_on_a_full_disk_says_so_in_one_line_with_status_2(dis
     accel = signals()
     write_csv_recording(tmp_path / "run.csv", 1.7e9 + np.arange(accel.shape[0]) / FS_HZ, accel)
     (tmp_path / "cfg.toml").write_text(CONFIG_TEXT)
-    before = Event(time_s=1.6e9, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash="old")
+    before = event_of(EventKind.SUSPECTED, 1.6e9, config_hash="old")
     holder = EventStore(disk.root / "state")  # held open, so its -wal and -shm files stay in place
     holder.append([before])
     disk.fill()
@@ -291,7 +292,7 @@ def test_the_run_command_on_a_full_disk_exits_3_with_crit_lines_and_no_traceback
     state = disk.root / "state"
     config = service_config(tmp_path, state)
     config.write_text(config.read_text() + f'[source]\nkind = "replay"\npath = "{tmp_path / "run.csv"}"\nrealtime = false\n')
-    before = Event(time_s=1.6e9, kind=EventKind.CONFIRMED, severity=Severity.ALARM, config_hash="old")
+    before = event_of(EventKind.CONFIRMED, 1.6e9, config_hash="old")
     holder = EventStore(state)
     holder.append([before])
     disk.fill()
@@ -342,10 +343,10 @@ def test_events_lists_a_store_on_read_only_media(disk: Disk, writer: str) -> Non
     code = (
         "import os, sys\n"
         "from bogiemon.daemon.store import EventStore\n"
-        "from bogiemon.judgement.events import Event, EventKind, Severity\n"
+        f"{CHILD_IMPORTS}"
         "s = EventStore(sys.argv[1])\n"
         "for i in range(5):\n"
-        "    s.append([Event(time_s=1.7e9 + i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash='x', event_id=str(i))])\n"
+        f"    s.append([{CHILD_EVENT.format(t='1.7e9 + i')}])\n"
         + ("s.close()\n" if writer == "closed" else "os.kill(os.getpid(), 9)\n")
     )
     subprocess.run([sys.executable, "-c", code, str(state)], check=writer == "closed")
@@ -362,7 +363,7 @@ def test_run_and_replay_and_events_refuse_a_store_with_a_zeroed_page_in_one_line
     state = tmp_path / "state"
     store = EventStore(state)
     for i in range(100):
-        store.append([Event(time_s=1.7e9 + i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash="x", details={"pad": "x" * 300})])
+        store.append([event_of(EventKind.NOT_JUDGED, 1.7e9 + i, config_hash="x", text="x" * 300)])
     store.close()
     path = state / "events.sqlite3"
     data = bytearray(path.read_bytes())

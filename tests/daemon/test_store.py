@@ -9,13 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bogiemon.judgement.events import Event, EventKind, Severity
+from bogiemon.daemon.event_json import event_body
+from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.store import EventStore, StoreError, StoreWriteError
+from bogiemon.daemon.store_file import SCHEMA_VERSION
 from bogiemon.daemon.outbox import OutboxCounts
+from tests.judgement.event_examples import CHILD_EVENT, CHILD_IMPORTS, event_of
 
 
 def event(t: float, kind: EventKind = EventKind.SUSPECTED) -> Event:
-    return Event(time_s=t, kind=kind, severity=Severity.WARNING, config_hash="c0ffee", indicators={"i4_norm": 0.3}, details={"load": "full"})
+    return event_of(kind, t, {"i4_norm": 0.3})
 
 
 def test_events_round_trip_in_commit_order(tmp_path: Path) -> None:
@@ -56,10 +59,10 @@ def test_committed_events_survive_a_killed_writer(tmp_path: Path) -> None:
     code = (
         "import os, sys\n"
         "from bogiemon.daemon.store import EventStore\n"
-        "from bogiemon.judgement.events import Event, EventKind, Severity\n"
+        f"{CHILD_IMPORTS}"
         "s = EventStore(sys.argv[1])\n"
         "for i in range(50):\n"
-        "    s.append([Event(time_s=i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash='x', event_id=str(i))])\n"
+        f"    s.append([{CHILD_EVENT.format(t='i')}])\n"
         "    print(i, flush=True)\n"
         "os.kill(os.getpid(), 9)\n"
     )
@@ -92,18 +95,18 @@ PRAGMA user_version=1;
 """
 
 
-def test_a_version_1_file_migrates_to_2_with_its_events_pending(tmp_path: Path) -> None:
+def test_a_version_1_file_migrates_to_the_current_version_with_its_events_pending(tmp_path: Path) -> None:
     old = event(5.0, EventKind.CONFIRMED)
     db = sqlite3.connect(tmp_path / "events.sqlite3")
     db.executescript(_V1_SCHEMA)
     db.execute(
         "INSERT INTO events (event_id, time_s, kind, severity, config_hash, body) VALUES (?, ?, ?, ?, ?, ?)",
-        (old.event_id, old.time_s, old.kind.value, old.severity.value, old.config_hash, json.dumps(old.as_dict())),
+        (old.event_id, old.time_s, old.kind.value, old.severity.value, old.config_hash, json.dumps(event_body(old))),
     )
     db.commit()
     db.close()
     store = EventStore(tmp_path)
-    assert store.schema_version == 2
+    assert store.schema_version == SCHEMA_VERSION == 3
     assert store.events() == [old]
     assert [p.event for p in store.outbox.pending_events()] == [old]
     assert store.outbox.counts() == OutboxCounts(pending_events=1, pending_alarms=1, pending_status=0, dropped_events=0, dropped_status=0)
@@ -112,9 +115,9 @@ def test_a_version_1_file_migrates_to_2_with_its_events_pending(tmp_path: Path) 
 def test_a_store_of_a_newer_schema_is_refused(tmp_path: Path) -> None:
     EventStore(tmp_path).close()
     db = sqlite3.connect(tmp_path / "events.sqlite3")
-    db.execute("PRAGMA user_version=3")
+    db.execute("PRAGMA user_version=4")
     db.close()
-    with pytest.raises(StoreError, match=r"written by a newer bogiemon \(schema 3 > 2\)"):
+    with pytest.raises(StoreError, match=r"written by a newer bogiemon \(schema 4 > 3\)"):
         EventStore(tmp_path)
 
 
@@ -175,15 +178,16 @@ def test_the_outbox_bound_drops_status_first_then_events_that_are_not_alarms_and
 
 def filled_store(path: Path, n: int = 200) -> list[Event]:
     store = EventStore(path)
-    sent = [replace_details(event(1.7e9 + i), i) for i in range(n)]
+    sent = [padded(event(1.7e9 + i), i) for i in range(n)]
     for e in sent:
         store.append([e], state={"monitor": {"n": e.time_s}})
     store.close()
     return sent
 
 
-def replace_details(e: Event, i: int) -> Event:
-    return Event(time_s=e.time_s, kind=e.kind, severity=e.severity, config_hash=e.config_hash, indicators=e.indicators, details={"load": "full", "pad": "x" * 200, "i": i})
+def padded(e: Event, i: int) -> Event:
+    """e as a NOT_JUDGED with 200 bytes more of text: the rows fill pages."""
+    return event_of(EventKind.NOT_JUDGED, e.time_s, e.indicators, e.config_hash, text=f"{i} " + "x" * 200, event_id=e.event_id)
 
 
 @pytest.mark.parametrize("readonly", [False, True], ids=["open", "readonly"])
@@ -222,12 +226,12 @@ def test_a_store_of_a_newer_schema_is_refused_without_a_byte_written(tmp_path: P
     filled_store(tmp_path, n=3)
     path = tmp_path / "events.sqlite3"
     db = sqlite3.connect(path)
-    db.execute("PRAGMA user_version=3")
+    db.execute("PRAGMA user_version=4")
     db.commit()
     db.close()
     before = path.read_bytes()
     for readonly in (False, True):
-        with pytest.raises(StoreError, match=r"written by a newer bogiemon \(schema 3 > 2\); left untouched"):
+        with pytest.raises(StoreError, match=r"written by a newer bogiemon \(schema 4 > 3\); left untouched"):
             EventStore(tmp_path, readonly=readonly)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["events.sqlite3"]
@@ -244,7 +248,7 @@ def test_a_start_killed_before_its_new_store_is_in_place_leaves_no_store_and_the
     assert proc.returncode == -9
     assert not (tmp_path / "events.sqlite3").exists()  # only the scratch copy, never a half-made store
     store = EventStore(tmp_path)
-    assert store.schema_version == 2 and store.events() == []
+    assert store.schema_version == SCHEMA_VERSION and store.events() == []
 
 
 def test_a_new_store_leaves_no_scratch_file_behind(tmp_path: Path) -> None:
@@ -257,7 +261,7 @@ def test_a_commit_the_disk_cannot_take_is_a_store_write_error_that_leaves_nothin
     store = EventStore(tmp_path)
     pages = store.connection.execute("PRAGMA page_count").fetchone()[0]
     store.connection.execute(f"PRAGMA max_page_count={pages}")  # SQLite's own SQLITE_FULL, as on a full disk
-    burst = [replace_details(event(2e9 + i), i) for i in range(300)]
+    burst = [padded(event(2e9 + i), i) for i in range(300)]
     with pytest.raises(StoreWriteError, match=r"events\.sqlite3: cannot commit to the event store: database or disk is full"):
         store.append(burst, state={"monitor": {"n": -1}})
     assert store.events() == sent
@@ -296,10 +300,10 @@ def test_a_killed_writer_leaves_a_store_that_opens_read_only_with_every_commit(t
     code = (
         "import os, sys\n"
         "from bogiemon.daemon.store import EventStore\n"
-        "from bogiemon.judgement.events import Event, EventKind, Severity\n"
+        f"{CHILD_IMPORTS}"
         "s = EventStore(sys.argv[1])\n"
         "for i in range(20):\n"
-        "    s.append([Event(time_s=i, kind=EventKind.SUSPECTED, severity=Severity.WARNING, config_hash='x', event_id=str(i))])\n"
+        f"    s.append([{CHILD_EVENT.format(t='i')}])\n"
         "os.kill(os.getpid(), 9)\n"
     )
     assert subprocess.run([sys.executable, "-c", code, str(tmp_path)]).returncode == -9

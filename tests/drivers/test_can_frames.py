@@ -29,9 +29,11 @@ from bogiemon.drivers.can_frames import (
     SO_TIMESTAMPNS,
     BusFrameReader,
     FrameBatch,
+    QueueFrameReader,
     SocketFrameReader,
     frames_from_datagrams,
 )
+from bogiemon.drivers.canbus import BusRole, open_bus
 from bogiemon.drivers.candb import CAN_EFF_KEY
 from tests.drivers.frames import HUB, DatagramCanBus, layout_frames, send_frames
 
@@ -264,3 +266,59 @@ def test_the_bus_reader_takes_python_can_messages_through_recv() -> None:
         assert reader.receive(10, 0.0) == 0 and reader.take().n == 0
     finally:
         bus.shutdown()
+
+
+# ---- python-can's virtual bus, its queue taken whole ------------------------------------------
+
+
+def virtual_pair() -> tuple[can.BusABC, can.BusABC, can.BusABC]:
+    """Two receivers and a sender on one new virtual channel."""
+    channel = f"queue-reader-{time.monotonic_ns()}"
+    return open_bus("virtual", channel, BusRole.RECEIVER), open_bus("virtual", channel, BusRole.RECEIVER), open_bus("virtual", channel, BusRole.SENDER)
+
+
+def test_the_queue_reader_takes_what_recv_takes_in_one_step() -> None:
+    ours, theirs, sender = virtual_pair()
+    try:
+        sent = layout_frames(HUB, np.arange(50)) + [
+            can.Message(arbitration_id=0x1ABCDEF, is_extended_id=True, data=b"\x01"),
+            can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=2),
+        ]
+        for message in sent:
+            sender.send(message)
+        queue_reader, bus_reader = QueueFrameReader(ours), BusFrameReader(theirs)
+        assert queue_reader.receive(100, 1.0) == len(sent) == bus_reader.receive(100, 1.0)
+        assert_same_batch(queue_reader.take(), bus_reader.take())  # the receive times too: stamped at sending
+        assert queue_reader.take().n == 0
+    finally:
+        for bus in (ours, theirs, sender):
+            bus.shutdown()
+
+
+def test_the_queue_reader_takes_at_most_what_is_asked_and_waits_for_the_first_frame() -> None:
+    ours, theirs, sender = virtual_pair()
+    theirs.shutdown()
+    try:
+        reader = QueueFrameReader(ours)
+        assert reader.receive(8, 0.02) == 0
+        for message in layout_frames(HUB, np.arange(10)):
+            sender.send(message)
+        assert reader.receive(4, 0.0) == 4 and reader.receive(100, 0.0) == 6 and reader.receive(100, 0.0) == 0
+        assert reader.take().data[:, 0].tolist() == list(range(10))
+        later = threading.Timer(0.05, sender.send, (layout_frames(HUB, np.arange(1))[0],))
+        later.start()
+        try:
+            assert reader.receive(8, 30.0) == 1  # woken by the frame, long before the timeout
+        finally:
+            later.join()
+    finally:
+        ours.shutdown()
+        sender.shutdown()
+
+
+def test_the_queue_reader_of_a_closed_bus_raises_as_python_can_does() -> None:
+    ours, theirs, sender = virtual_pair()
+    for bus in (theirs, sender, ours):
+        bus.shutdown()
+    with pytest.raises(can.CanOperationError):
+        QueueFrameReader(ours).receive(8, 0.0)

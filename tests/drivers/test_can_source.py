@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from bogiemon.drivers.base import Block, HealthCounters, SensorStatus
 from bogiemon.drivers.can_decode import CanFrameDecoder
-from bogiemon.drivers.can_frames import CAN_ERR_BUSOFF, CAN_ERR_CRTL, BusFrameReader, SocketFrameReader
+from bogiemon.drivers.can_frames import CAN_ERR_BUSOFF, CAN_ERR_CRTL, BusFrameReader, QueueFrameReader, SocketFrameReader
 from bogiemon.drivers.can_source import BusPort, CanBusPort, CanSource, set_receive_buffer, socket_drops
 from bogiemon.drivers.candb import CanLayout
 from bogiemon.drivers.canbus import UnknownBusKind
@@ -401,11 +401,13 @@ def send_and_read(source: CanSource, bus: DatagramCanBus, frames: list[can.Messa
     return [b for b in blocks if b is not None]
 
 
-def test_the_socketcan_kind_reads_its_socket_in_batches_and_the_virtual_kind_through_recv(datagram_socketcan) -> None:
+def test_the_socketcan_kind_reads_its_socket_in_batches_and_the_virtual_kind_its_queue(datagram_socketcan) -> None:
     socketcan, virtual = CanBusPort("socketcan", "can7"), CanBusPort("virtual", channel_name())
     socket_bus, virtual_bus = socketcan.open(), virtual.open()
     try:
         assert isinstance(socketcan.frame_reader(socket_bus, 10), SocketFrameReader)
+        assert isinstance(virtual.frame_reader(virtual_bus, 10), QueueFrameReader)
+        virtual_bus.set_filters([{"can_id": 0x100, "can_mask": 0x7FF}])  # python-can filters in recv
         assert isinstance(virtual.frame_reader(virtual_bus, 10), BusFrameReader)
     finally:
         socket_bus.shutdown()
@@ -580,10 +582,12 @@ def test_a_coalescing_read_still_returns_what_arrived_when_its_timeout_ends() ->
     assert bus.now_s <= 0.5 + 1e-9
 
 
-def test_the_default_coalescing_interval_is_the_time_of_100_frames_at_most_50_ms() -> None:
+def test_the_default_coalescing_interval_is_the_time_of_100_frames_at_most_200_ms() -> None:
     hub = CanSource(ScheduledPort(ScheduledBus([], 0.0)), HUB, FS_HZ)
     per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, FS_HZ)
     fast_per_node = CanSource(ScheduledPort(ScheduledBus([], 0.0)), PER_NODE, 2 * FS_HZ)
-    assert hub.coalesce_s == pytest.approx(0.05)  # at most 50 ms (100 frames take 0.2 s)
+    slow_hub = CanSource(ScheduledPort(ScheduledBus([], 0.0)), HUB, FS_HZ / 4)
+    assert hub.coalesce_s == pytest.approx(0.2)  # 100 frames at 500 frames/s
     assert per_node.coalesce_s == pytest.approx(0.05)  # 100 frames at 2000 frames/s
     assert fast_per_node.coalesce_s == pytest.approx(100 / (2 * FS_HZ * PER_NODE.frames_per_instant))
+    assert slow_hub.coalesce_s == pytest.approx(0.2)  # at most 0.2 s (100 frames take 0.8 s)

@@ -77,8 +77,8 @@ def test_without_af_can_the_socketcan_kind_raises_eafnosupport_and_the_player_sa
     with pytest.raises(PlayError) as play_info:
         open_player_bus("socketcan", "vcan0")
     assert str(play_info.value) == (
-        "CAN interface 'vcan0': this kernel has no SocketCAN (AF_CAN); "
-        "use --interface virtual, or a Linux kernel with the can and vcan modules"
+        "CAN interface 'vcan0': this kernel has no SocketCAN (AF_CAN): use a Linux kernel with the can and "
+        "vcan modules (`modprobe vcan`), or make a CAN log without a bus: `bogiemon convert FILE -o run.log`"
     )
 
 

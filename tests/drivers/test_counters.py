@@ -8,7 +8,8 @@ import pytest
 from bogiemon.drivers.can_decode import CAN_COUNTERS
 from bogiemon.drivers.counters import COUNTERS, counters
 from bogiemon.drivers.live import LIVE_COUNTERS
-from bogiemon.drivers.replay import RECORDING_COUNTERS, REPLAY_COUNTERS
+from bogiemon.drivers.replay import RECORDING_COUNTERS
+from bogiemon.drivers.replay_can import REPLAY_COUNTERS
 from bogiemon.drivers.segments import TIMESTAMP_COUNTERS
 from bogiemon.drivers.serial_source import SERIAL_COUNTERS
 

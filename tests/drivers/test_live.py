@@ -83,6 +83,48 @@ def read_until(source: FakeSource, n: int, max_reads: int = 50) -> list:
     return blocks
 
 
+class BurstSource(FakeSource):
+    """A FakeSource whose device, after bit errors, delivers its instants in segments of three (each
+    receive brings what it was asked for, or waits its timeout out when the script is done)."""
+
+    def _receive(self, device: FakeDevice, timeout_s: float, wanted_n: int) -> None:
+        if not device.script:
+            self.clock.now_s += timeout_s
+            return
+        left = device.script[0]
+        assert isinstance(left, int)
+        n = min(left, wanted_n)
+        device.script[0] = left - n
+        if device.script[0] == 0:
+            device.script.popleft()
+        k = np.arange(self.next_instant, self.next_instant + n)
+        self.next_instant += n
+        self.counters.frames += n
+        self._queue.append(coded_accel(k), np.zeros((n, 3), np.uint8), k % 3 == 0, self.clock.now_s + k / FS_HZ)
+
+
+def test_after_a_burst_of_errors_every_queued_segment_goes_on_without_a_wait_on_the_device() -> None:
+    clock = FakeClock()
+    source = BurstSource(clock)  # blocks of 50 samples at most
+    source.script.append(300)
+    blocks = read_until(source, 300, max_reads=500)
+    segments = check_blocks(blocks)
+    assert len(segments) == 100 and np.concatenate(segments).tolist() == list(range(300))
+    # One read waited on the device, the last: for the samples the open segment lacked, which never came.
+    assert clock.now_s == pytest.approx(0.05)
+    assert source.behind_s() == 0.0
+
+
+def test_a_live_source_is_behind_by_what_it_holds_beyond_one_block() -> None:
+    clock = FakeClock()
+    source = BurstSource(clock)
+    source.script.append(60)
+    source._receive(source.devices[0], 1.0, 200)  # a read's worth more than a block (50), taken at once
+    assert source.behind_s() == pytest.approx(10 / FS_HZ)
+    read_until(source, 60, max_reads=100)
+    assert source.behind_s() == 0.0
+
+
 def test_a_device_missing_at_start_is_retried_with_backoff_and_never_raised() -> None:
     clock = FakeClock()
     source = FakeSource(clock, missing=3)

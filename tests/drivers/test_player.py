@@ -17,7 +17,7 @@ from bogiemon.cli.main import main
 from bogiemon.drivers.candb import LAYOUTS
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.player import PlayError, play
-from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, silences_heard, write_recording
+from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, coded_accel, silences_heard, write_recording
 
 
 class RecordingBus(can.BusABC):
@@ -170,6 +170,28 @@ def test_cli_play_writes_its_ready_file_before_the_first_frame(tmp_path: Path) -
             assert ready.read_text() == f"virtual {channel}\n"  # there when the first frame arrived
         finally:
             player.join()
+
+
+def test_cli_play_on_the_virtual_interface_says_no_other_program_heard_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    write_recording(tmp_path / "run.csv", 100)
+    assert main(["play", str(tmp_path / "run.csv"), "--interface", "virtual", "--channel", channel_name(), "--rate", "0"]) == 0
+    note = capsys.readouterr().err.splitlines()[-1]
+    assert note.startswith("# note: the virtual interface is a bus inside this process: no other program heard these frames.")
+    assert "--interface socketcan --channel vcan0" in note and "bogiemon convert" in note
+
+
+def test_cli_play_sends_a_can_log_decoded_with_its_dbc(tmp_path: Path) -> None:
+    from bogiemon.drivers.player import write_can_log
+
+    accel = coded_accel(np.arange(300))
+    write_can_log(tmp_path / "run.log", HUB, accel, FS_HZ, start_s=1.7645e9)
+    channel = channel_name()
+    with CanSource(CanBusPort("virtual", channel), HUB, FS_HZ) as source:
+        assert main(["play", str(tmp_path / "run.log"), "--interface", "virtual", "--channel", channel, "--rate", "0"]) == 0
+        blocks = []
+        while (block := source.read(0.05)) is not None:
+            blocks.append(block)
+    np.testing.assert_array_equal(np.concatenate([b.accel_mps2 for b in blocks]), accel)
 
 
 def test_cli_play_offers_the_layouts_of_the_dbc_module() -> None:

@@ -66,8 +66,8 @@ def test_blank_lines_and_a_byte_order_mark_are_accepted(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("", r"line 1: expected the header 'time_s,a1,a2,a3', found 'an empty line'"),
-        ("time,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3', found 'time,a1,a2,a3'"),
+        ("", r"line 1: expected the header 'time_s,a1,a2,a3' or the columns of a mapping, found 'an empty line': no time column"),
+        ("x,y,z,w\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' or the columns of a mapping, found 'x,y,z,w': no time column, no column 'a1'.*--columns time=NAME"),
         ("time_s,a1,a2,a3\n", r"holds no samples after the header"),
         ("time_s,a1,a2,a3\n0,1,2,3\n", r"holds 1 sample\(s\)"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,x,3\n", r"line 3: a2 is not a number: 'x'"),
@@ -83,8 +83,8 @@ def test_blank_lines_and_a_byte_order_mark_are_accepted(tmp_path: Path) -> None:
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.002,1,2,3\n", r"line 4: time_s 0.002 does not increase"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.001,1,2,3\n", r"line 4: time_s 0.001 does not increase"),
         (
-            "time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.004,1,2,3\n0.008,1,2,3\n0.010,1,2,3\n",
-            r"line 5: time step 0.004 s differs from the file's 0.002 s \(500 Hz\)",
+            "time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.004,1,2,3\n0.0045,1,2,3\n0.006,1,2,3\n",
+            r"line 5: time step 0.0005 s is shorter than the file's 0.002 s \(500 Hz\) by more than its jitter \(25%\)",
         ),
     ],
     ids=[
@@ -201,7 +201,7 @@ def test_the_streaming_reader_gives_the_csv_modules_rows_across_any_block_bounda
     path.write_bytes(gzip.compress(raw) if packed else raw)
     time_s, accel = reference_rows(raw)
     reader = open_recording_reader(path)
-    assert reader.n_samples == n and reader.fs_hz == (n - 1) / (time_s[-1] - time_s[0])
+    assert reader.n_samples == n and reader.fs_hz == 500.0  # the nominal rate of steps of 1/500 s
     got_t, got_a = chunked(path)
     np.testing.assert_array_equal(got_t, time_s)
     np.testing.assert_array_equal(got_a, accel)
@@ -214,12 +214,16 @@ def test_a_recording_is_read_a_block_at_a_time_not_whole(tmp_path: Path) -> None
     assert sum(sizes) == 200_000 and len(sizes) > 4 and max(sizes) < 60_000  # a megabyte of text a chunk
 
 
-def test_the_files_step_is_the_median_of_its_first_steps_and_a_later_gap_is_named(tmp_path: Path) -> None:
+def test_a_lost_sample_far_in_is_a_gap_and_a_new_segment_not_an_error(tmp_path: Path) -> None:
     t = np.arange(10_000) / 500.0
     t[9000:] += 0.002  # one lost sample, far after the first REFERENCE_STEPS steps
     write_csv_recording(tmp_path / "gap.csv", t, np.zeros((t.size, 3)))
-    with pytest.raises(RecordingError, match=r"gap.csv: line 9002: time step 0.004 s differs from the file's 0.002 s \(500 Hz\)"):
-        read_recording(tmp_path / "gap.csv")
+    reader = open_recording_reader(tmp_path / "gap.csv")
+    chunks = [time_s for time_s, _ in reader.chunks()]
+    assert reader.fs_hz == 500.0 and reader.gap_count == 1
+    assert reader.gaps[0].after_s == pytest.approx(8999 / 500.0) and reader.gaps[0].missing_s == pytest.approx(0.002)
+    np.testing.assert_array_equal(np.concatenate(chunks), np.round(t, 6))  # as the CSV writes them
+    assert not any(np.any(np.diff(c) > 0.003) for c in chunks)  # no chunk spans the gap
 
 
 @pytest.mark.parametrize(
@@ -227,9 +231,9 @@ def test_the_files_step_is_the_median_of_its_first_steps_and_a_later_gap_is_name
     [
         ("{t!r},1,x,3", r"line {line}: a2 is not a number: 'x'"),  # pyarrow refuses the block
         ("{t!r},1,nan,3", r"line {line}: a value is NaN"),  # the row checks refuse it
-        ("{t2!r},1,2,3", r"line {line}: time step 0.004 s differs"),
+        ("{t3!r},1,2,3", r"line {line}: time step 0.0005 s is shorter"),
     ],
-    ids=["not-a-number", "nan", "lost-sample"],
+    ids=["not-a-number", "nan", "stray-row"],
 )
 def test_the_rows_before_a_bad_line_are_given_and_then_its_error(tmp_path: Path, bad_row: str, expected: str) -> None:
     k = 60_000  # more than a megabyte of text before it: the bad line is in a later block
@@ -237,7 +241,7 @@ def test_the_rows_before_a_bad_line_are_given_and_then_its_error(tmp_path: Path,
     a = np.random.default_rng(0).normal(size=(t.size, 3))
     write_csv_recording(tmp_path / "good.csv", t, a)
     lines = (tmp_path / "good.csv").read_text().splitlines()
-    lines[1 + k] = bad_row.format(t=float(t[k]), t2=float(t[k]) + 0.002)
+    lines[1 + k] = bad_row.format(t=float(t[k]), t3=round(float(t[k - 1]) + 0.0005, 6))
     (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
     given: list[np.ndarray] = []
     with pytest.raises(RecordingError, match=f"bad.csv: {expected.format(line=k + 2)}"):
@@ -309,7 +313,7 @@ def test_a_parquet_recording_holds_the_samples_exactly(tmp_path: Path) -> None:
     rec = read_recording(tmp_path / "r.parquet")
     np.testing.assert_array_equal(rec.time_s, t)
     np.testing.assert_array_equal(rec.accel_mps2, a)
-    assert rec.fs_hz == (t.size - 1) / (t[-1] - t[0])
+    assert rec.fs_hz == 500.0  # the nominal rate of its steps, snapped to the whole hertz
 
 
 def test_the_same_samples_read_the_same_from_csv_and_parquet(tmp_path: Path) -> None:
@@ -356,15 +360,19 @@ def test_a_null_in_a_parquet_recording_is_named_by_its_row(tmp_path: Path) -> No
 
 @pytest.mark.parametrize(
     ("columns", "found"),
-    [({"time_s": [0.0, 1.0], "a1": [0.0, 1.0]}, "time_s double, a1 double"), ({"t": [0.0], "a1": [1], "a2": [1], "a3": [1]}, "t double, a1 int64, a2 int64, a3 int64")],
-    ids=["too-few", "other-names-and-types"],
+    [
+        ({"time_s": [0.0, 1.0], "a1": [0.0, 1.0]}, r"found time_s, a1: no column 'a2', no column 'a3'"),
+        ({"x": [0.0], "a1": [1], "a2": [1], "a3": [1]}, r"found x, a1, a2, a3: no time column"),
+        ({"time_s": [0.0, 1.0], "a1": ["1", "2"], "a2": [1, 2], "a3": [1, 2]}, r"expected number columns .* found time_s double, a1 string"),
+    ],
+    ids=["too-few", "no-time", "text"],
 )
 def test_a_parquet_file_of_other_columns_is_no_recording(tmp_path: Path, columns: dict, found: str) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     pq.write_table(pa.table(columns), tmp_path / "x.parquet")
-    with pytest.raises(RecordingError, match=rf"x.parquet: expected the float64 columns time_s, a1, a2, a3, found {found}$"):
+    with pytest.raises(RecordingError, match=rf"x.parquet: .*{found}"):
         read_recording(tmp_path / "x.parquet")
 
 
@@ -393,17 +401,15 @@ def test_a_parquet_row_group_larger_than_the_bound_is_refused_before_it_is_read(
         open_recording_reader(tmp_path / "r.parquet")
 
 
-def test_a_gap_that_puts_the_rate_off_its_steps_gives_no_row_at_that_rate(tmp_path: Path) -> None:
+def test_a_gap_that_puts_the_first_to_last_rate_off_its_steps_keeps_the_rate_of_its_steps(tmp_path: Path) -> None:
     # Found by make fuzz (recording-gz): a 40-row file missing one row was replayed at its
-    # first-to-last rate, 2.6 % off the step of every row before the gap, before the gap was named.
+    # first-to-last rate, 2.6 % off the step of every row before the gap. Its rate is its steps'.
     t = np.delete(np.arange(41) / 10.0, 28)
     write_csv_recording(tmp_path / "gap.csv", t, np.zeros((t.size, 3)))
     reader = open_recording_reader(tmp_path / "gap.csv")
-    given: list[np.ndarray] = []
-    with pytest.raises(RecordingError, match=r"gap.csv: line 30: time step 0.2 s differs from the file's 0.1 s \(10 Hz\)"):
-        for time_s, _ in reader.chunks():
-            given.append(time_s)
-    assert given == []
+    chunks = [time_s for time_s, _ in reader.chunks()]
+    assert reader.fs_hz == 10.0 and reader.gap_count == 1
+    assert [c.shape[0] for c in chunks] == [28, 12]
 
 
 def test_a_parquet_footer_that_claims_rows_its_pages_do_not_hold_is_one_error(tmp_path: Path) -> None:

@@ -39,6 +39,16 @@ def test_the_gz_writer_compresses_the_plain_writers_text(tmp_path: Path) -> None
     assert gzip.decompress((tmp_path / "r.csv.gz").read_bytes()) == (tmp_path / "r.csv").read_bytes()
 
 
+@pytest.mark.parametrize(("level", "xfl"), [(1, 4), (9, 2)])  # gzip's header says fastest (4) or best (2)
+def test_the_gz_writer_at_another_level_compresses_the_same_text_at_that_level(tmp_path: Path, level: int, xfl: int) -> None:
+    t, a = samples(100)
+    write_csv_recording(tmp_path / "r.csv", t, a)
+    write_csv_recording(tmp_path / "r.csv.gz", t, a, gzip_level=level)
+    packed = (tmp_path / "r.csv.gz").read_bytes()
+    assert packed[8] == xfl
+    assert gzip.decompress(packed) == (tmp_path / "r.csv").read_bytes()
+
+
 def test_the_same_samples_give_the_same_gz_bytes(tmp_path: Path) -> None:
     t, a = samples(100)
     write_csv_recording(tmp_path / "a.csv.gz", t, a)
@@ -57,12 +67,12 @@ def test_gzip_is_recognised_by_its_magic_bytes_whatever_the_name(tmp_path: Path)
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("time,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3', found 'time,a1,a2,a3'"),
+        ("x,a1,a2,a3\n0,1,2,3\n", r"line 1: expected the header 'time_s,a1,a2,a3' or the columns of a mapping, found 'x,a1,a2,a3': no time column"),
         ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,x,3\n", r"line 3: a2 is not a number: 'x'"),
         ("time_s,a1,a2,a3\n0,1,2,3\n\n0.002,1,2,3\n0.004,nan,2,3\n", r"line 5: a value is NaN"),
-        ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.004,1,2,3\n0.008,1,2,3\n", r"line 5: time step 0.004 s differs"),
+        ("time_s,a1,a2,a3\n0,1,2,3\n0.002,1,2,3\n0.004,1,2,3\n0.0045,1,2,3\n", r"line 5: time step 0.0005 s is shorter"),
     ],
-    ids=["wrong-header", "non-numeric", "nan-after-a-blank-line", "dropped-sample"],
+    ids=["wrong-header", "non-numeric", "nan-after-a-blank-line", "stray-row"],
 )
 def test_a_bad_row_in_a_gz_recording_is_the_plain_files_error_naming_its_line(tmp_path: Path, text: str, message: str) -> None:
     plain = tmp_path / "rec.csv"

@@ -15,9 +15,11 @@ import numpy as np
 import pytest
 
 from bogiemon.drivers.base import Block, EndOfStream, Source
+from bogiemon.drivers.columns import nominal_rate_hz
 from bogiemon.drivers.player import write_can_log
 from bogiemon.drivers.recording import MAX_ACCEL_MPS2, RecordingError, read_recording, write_csv_recording, write_parquet_recording
-from bogiemon.drivers.replay import MAX_PACED_PAUSE_S, CanLogReplaySource, CsvReplaySource, open_replay
+from bogiemon.drivers.replay import CsvReplaySource, open_replay
+from bogiemon.drivers.replay_can import MAX_PACED_PAUSE_S, CanLogReplaySource
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, check_blocks, coded_accel, layout_frames, write_recording
 
 
@@ -127,7 +129,7 @@ def test_a_truncated_log_line_ends_the_replay_counted_not_raised(tmp_path: Path)
 
 @pytest.mark.parametrize(
     ("name", "message"),
-    [("run.mp3", r"run.mp3: not a recording bogiemon replays"), ("missing.log", r"missing.log: cannot read the CAN log")],
+    [("run.mp3", r"run.mp3: not a recording bogiemon replays"), ("missing.log", r"missing.log: cannot read the recording: No such file")],
 )
 def test_an_unusable_replay_file_is_named_in_one_line(tmp_path: Path, name: str, message: str) -> None:
     if name.endswith(".mp3"):
@@ -293,7 +295,7 @@ def whole_file_blocks(path: Path, block_n: int) -> list[Block]:
     csv module's reading of it: consecutive block_n samples, the rate of the whole file."""
     rows = list(csv.reader(io.StringIO(path.read_text())))[1:]
     data = np.array([[float(cell) for cell in row] for row in rows])
-    fs_hz = (data.shape[0] - 1) / (data[-1, 0] - data[0, 0])
+    fs_hz = nominal_rate_hz((data[-1, 0] - data[0, 0]) / (data.shape[0] - 1))  # snapped to the whole hertz
     return [
         Block(float(data[i, 0]), fs_hz, data[i : i + block_n, 1:], gap_before=i == 0) for i in range(0, data.shape[0], block_n)
     ]

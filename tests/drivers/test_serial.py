@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import binascii
 import os
 import time
 import tty
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,7 +23,7 @@ from bogiemon.drivers.serial_protocol import (
     crc16_ccitt_false_rows,
     encode_packets,
 )
-from bogiemon.drivers.serial_source import SerialSource
+from bogiemon.drivers.serial_source import SerialSource, open_serial_port
 from tests.drivers.frames import FS_HZ, LSB_MPS2, check_blocks, coded_accel
 
 
@@ -44,6 +46,13 @@ def test_crc_is_ccitt_false_by_its_check_value() -> None:
 def test_batch_crc_equals_the_bitwise_reference(rows: list[bytes]) -> None:
     batch = crc16_ccitt_false_rows(np.frombuffer(b"".join(rows), np.uint8).reshape(len(rows), 11))
     assert batch.tolist() == [crc_bitwise(r) for r in rows]
+
+
+def test_batch_crc_equals_binascii_on_random_packets() -> None:
+    rows = np.random.default_rng(35).integers(0, 256, size=(1000, 11), dtype=np.uint8)
+    expected = [binascii.crc_hqx(row.tobytes(), 0xFFFF) for row in rows]
+    assert crc16_ccitt_false_rows(rows).tolist() == expected
+    assert [crc16_ccitt_false(row.tobytes()) for row in rows] == expected
 
 
 def test_a_packet_is_laid_out_byte_by_byte_as_documented() -> None:
@@ -155,9 +164,10 @@ class ScriptedPort:
 def test_serial_source_counts_damage_and_never_bridges_a_gap(stream: tuple[bytes, set[int], int]) -> None:
     data, intact, chunk = stream
     chunks = [data[i : i + chunk] for i in range(0, len(data), chunk)]
-    source = SerialSource("scripted", 115200, FS_HZ, opener=lambda port, baud: ScriptedPort(chunks))
+    port = ScriptedPort(chunks)
+    source = SerialSource("scripted", 115200, FS_HZ, opener=lambda name, baud: port)
     blocks = []
-    for _ in range(len(chunks) + 2):
+    while port.chunks:  # a read hands on a queued block before it reads the port again
         block = source.read(0.0001)
         if block is not None:
             blocks.append(block)
@@ -299,3 +309,73 @@ def test_garbage_before_the_stream_is_skipped_and_counted(tmp_path: Path, garbag
             assert source.counters.extra["garbage_bytes"] == len(garbage)
     finally:
         adapter.unplug()
+
+
+class CountingPort:
+    """A real pyserial port that counts its reads that came back short: those waited out their timeout."""
+
+    def __init__(self, port: Any) -> None:
+        self.port = port
+        self.short_reads = 0
+
+    @property
+    def timeout(self) -> float:
+        return float(self.port.timeout)
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self.port.timeout = value
+
+    @property
+    def in_waiting(self) -> int:
+        return int(self.port.in_waiting)
+
+    def read(self, size: int) -> bytes:
+        data = self.port.read(size)
+        self.short_reads += len(data) < size
+        return bytes(data)
+
+    def reset_input_buffer(self) -> None:
+        self.port.reset_input_buffer()
+
+    def close(self) -> None:
+        self.port.close()
+
+
+def test_after_a_burst_of_bit_errors_the_source_hands_on_what_it_holds_without_waiting_on_the_port(tmp_path: Path) -> None:
+    # The finding: after bit errors every segment waited out a read's timeout before it went on
+    # (one segment per 0.5 s), so the source fell behind real time and stayed there. Here the port
+    # holds 1.2 s of packets, a flipped bit in every tenth of the first second (50 segments), before
+    # the first read (a pty holds 11 to 13 kB): every read until the last sample must go on without
+    # the port's timeout.
+    n, damaged = 600, range(5, 500, 10)
+    packets = [bytearray(encode_packets(coded_accel(np.array([k])), first_sequence=k)) for k in range(n)]
+    for k in damaged:
+        packets[k][7] ^= 0x40  # a bit error: the CRC fails, the sample is lost, a new segment starts
+    adapter = Adapter(tmp_path / "ttyADC")
+    adapter.plug()
+    ports: list[CountingPort] = []
+
+    def opener(port: str, baudrate: int) -> CountingPort:
+        ports.append(CountingPort(open_serial_port(port, baudrate)))
+        return ports[-1]
+
+    try:
+        with SerialSource(str(adapter.link), 115200, FS_HZ, max_block_s=0.1, opener=opener) as source:
+            os.set_blocking(adapter.master, False)
+            assert os.write(adapter.master, b"".join(packets)) == n * PACKET_SIZE  # all of it buffered before the first read
+            blocks, got, reads = [], 0, 0
+            while got < n - len(damaged) and reads < 2 * n:
+                block = source.read(0.5)
+                reads += 1
+                if block is not None:
+                    blocks.append(block)
+                    got += block.n_samples
+            behind_s = source.behind_s()
+    finally:
+        adapter.unplug()
+    segments = check_blocks(blocks)
+    assert np.concatenate(segments).tolist() == sorted(set(range(n)) - set(damaged))
+    assert len(segments) == len(damaged) + 1 and source.counters.extra["crc_errors"] == len(damaged)
+    # The last read alone may wait: for the samples the open segment lacked, which never came.
+    assert ports[0].short_reads <= 1 and behind_s == 0.0

@@ -15,7 +15,8 @@ from bogiemon.daemon.sources import OPENERS, open_source
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.candb import DbcError
 from bogiemon.drivers.recording import RecordingError, write_csv_recording
-from bogiemon.drivers.replay import CanLogReplaySource, CsvReplaySource
+from bogiemon.drivers.replay import CsvReplaySource
+from bogiemon.drivers.replay_can import CanLogReplaySource
 from bogiemon.drivers.serial_source import SerialSource
 from tests.drivers.frames import write_recording
 

@@ -36,7 +36,7 @@ from bogiemon.drivers.base import Block
 from bogiemon.drivers.can_source import CanBusPort, CanSource
 from bogiemon.drivers.canbus import BusRole, open_bus
 from bogiemon.drivers.player import encode_instants
-from bogiemon.drivers.replay import CanLogReplaySource
+from bogiemon.drivers.replay_can import CanLogReplaySource
 from tests.drivers.frames import FS_HZ, HUB, LSB_MPS2, PER_NODE, channel_name, silences_heard, write_recording
 
 CHANNEL = "vcan0"
@@ -357,3 +357,75 @@ def test_canplayer_feeds_the_socketcan_source(tmp_path: Path) -> None:
     got = np.concatenate([b.accel_mps2 for b in blocks])
     assert got.shape == (n, 3) and np.abs(got - accel).max() <= LSB_MPS2 / 2 + 1e-12
     assert source.counters.gaps == 0 and source.counters.extra["dropped_by_kernel"] == 0
+
+
+# ---- the recvmmsg reader on a real AF_CAN socket ------------------------------------------------
+
+
+def mixed_frames() -> list[can.Message]:
+    """The hub's frames with what else a bus carries: a 29-bit identifier, a remote frame, short and empty data."""
+    frames = [can.Message(arbitration_id=0x100, is_extended_id=False, data=bytes([k, 1, 2, 3, 4, 5, 6, 7])) for k in range(40)]
+    frames[5:5] = [
+        can.Message(arbitration_id=0x1ABCDEF, is_extended_id=True, data=b"\x01\x02\x03"),
+        can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=4),
+        can.Message(arbitration_id=0x7FF, is_extended_id=False, data=b""),
+        can.Message(arbitration_id=0x80, is_extended_id=True, data=b"\xff" * 8),
+    ]
+    return frames
+
+
+@pytest.mark.vcan
+@needs_vcan0
+def test_on_vcan0_the_socket_reader_reads_what_python_can_reads() -> None:
+    from bogiemon.drivers.can_frames import FrameBatch, SocketFrameReader
+
+    ours = open_bus("socketcan", CHANNEL, BusRole.RECEIVER)
+    theirs = open_bus("socketcan", CHANNEL, BusRole.RECEIVER)
+    sender = open_bus("socketcan", CHANNEL, BusRole.SENDER)
+    try:
+        sent = mixed_frames()
+        for message in sent:
+            sender.send(message)
+        reader = SocketFrameReader(ours.socket, capacity=128)  # type: ignore[attr-defined]
+        got_n = 0
+        deadline_s = time.monotonic() + PATIENCE_S
+        while got_n < len(sent) and time.monotonic() < deadline_s:
+            got_n += reader.receive(128 - got_n, 1.0)
+        python_can = [m for m in (theirs.recv(timeout=10.0) for _ in sent) if m is not None]
+        assert got_n == len(python_can) == len(sent)
+        got, expected = reader.take(), FrameBatch.from_messages(python_can)
+        np.testing.assert_array_equal(got.key, expected.key)
+        np.testing.assert_array_equal(got.length, expected.length)
+        np.testing.assert_array_equal(got.data, expected.data)
+        np.testing.assert_array_equal(got.flags, expected.flags)
+        # Each socket gets the kernel's one receive stamp of the frame, read by either reader.
+        np.testing.assert_allclose(got.time_s, expected.time_s, rtol=0, atol=1e-6)
+    finally:
+        for bus in (ours, theirs, sender):
+            bus.shutdown()
+
+
+@pytest.mark.vcan
+@needs_vcan0
+def test_on_vcan0_the_kernels_drop_count_is_what_a_full_receive_buffer_lost() -> None:
+    from bogiemon.drivers.can_frames import SocketFrameReader
+    from bogiemon.drivers.can_source import set_receive_buffer, socket_drops
+
+    receiver = open_bus("socketcan", CHANNEL, BusRole.RECEIVER)
+    sender = open_bus("socketcan", CHANNEL, BusRole.SENDER)
+    try:
+        sock = receiver.socket  # type: ignore[attr-defined]
+        set_receive_buffer(sock, 4096)  # a few frames' worth: the kernel's minimum
+        assert socket_drops(sock) == 0
+        n = 300
+        for k in range(n):  # nobody reads meanwhile
+            sender.send(can.Message(arbitration_id=0x100, is_extended_id=False, data=bytes([k % 256] * 8)))
+        reader = SocketFrameReader(sock, capacity=n)
+        received = 0
+        while reader.receive(n, 0.5):
+            received += reader.take().n
+        dropped = socket_drops(sock)
+        assert 0 < received < n and dropped == n - received
+    finally:
+        receiver.shutdown()
+        sender.shutdown()

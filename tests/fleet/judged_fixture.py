@@ -13,14 +13,30 @@ import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from bogiemon.daemon.messages import encode_event
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.detection import Corner
+from bogiemon.judgement.diagnosis import Diagnosis
+from bogiemon.judgement.events import (
+    DEFAULT_BOGIE,
+    DEFAULT_SEVERITY,
+    ClearedDetails,
+    ConfirmedDetails,
+    Event,
+    EventDetails,
+    KOfN,
+    SensorFaultDetails,
+    SuspectedDetails,
+    SuspensionHint,
+    Trigger,
+)
+from bogiemon.judgement.rules import Threshold
+from bogiemon.judgement.vocabulary import LoadState, Method, Mode
 
 HOP_S = 10.0  # the daemon's default hop between windows
 FIRST_DAY = "2026-11-30"
@@ -74,9 +90,14 @@ DEFAULT_FLEET = (
     WagonSpec("31-80-4557-006", "suspected", type="Sgns-Y25-light"),
     WagonSpec("31-80-4557-005", "no_data", commissioned=(), notes=("no recordings",)),
 )
-DIAGNOSIS = {
-    "corner": "leading-left or trailing-right", "corners": ["leading-left", "trailing-right"], "kind": "unknown", "corner_confidence": 0.84,
-    "kind_confidence": 0.0,
+DIAGNOSIS = Diagnosis(
+    corners=(Corner.LEADING_LEFT, Corner.TRAILING_RIGHT), kind="unknown", corner_confidence=0.84, kind_confidence=0.0,
+    best_match="pitch-roll +4.1, bounce-roll +3.2 sd at 4-8 Hz: leading-left or trailing-right", cosine=1.0, windows=3,
+)  # fmt: skip
+# The diagnosis as wagons.json holds it (the CONFIRMED event's, as JSON).
+DIAGNOSIS_BODY = {
+    "corner": DIAGNOSIS.corner, "corners": [c.value for c in DIAGNOSIS.corners], "kind": DIAGNOSIS.kind,
+    "corner_confidence": DIAGNOSIS.corner_confidence, "kind_confidence": DIAGNOSIS.kind_confidence,
 }  # fmt: skip
 CORNERS = {"a1": "leading-left", "a2": "leading-right", "a3": "trailing-left"}
 
@@ -107,8 +128,8 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
     if spec.kind == "no_data":
         return wagon
     day0 = datetime.fromisoformat(FIRST_DAY).replace(tzinfo=UTC) - timedelta(days=spec.days_behind)
-    bogie = {} if spec.bogie is None else {"bogie": spec.bogie}
-    pointed = {"suspension": {"corners": list(spec.sensor_suspension), "fused_score": 80.0, "alarm": 67.0}} if spec.sensor_suspension else {}
+    bogie = DEFAULT_BOGIE if spec.bogie is None else spec.bogie
+    pointed = SuspensionHint(spec.sensor_suspension, 80.0, 67.0, "") if spec.sensor_suspension else None
     n_total = shape.days * shape.recordings_per_day * shape.windows_per_recording
     scores = _scores(spec.kind, n_total, rng)
     mode, over_alarm, clean, trend, i = "NORMAL", 0, 0, 0.0, 0
@@ -125,7 +146,11 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                 judged = not gate and not faulty
                 if faulty and not wagon.reported_fault:
                     wagon.reported_fault = True
-                    wagon.events.append(_event(time_s, EventKind.SENSOR_FAULT, rng, details={"problems": {"a3": ["noisy"]}, "reported": {"a3": ["noisy"]}, **bogie, **pointed}))
+                    noisy = {"a3": ("noisy",)}
+                    found = SensorFaultDetails(
+                        window_start_s=time_s - 120.0, window_end_s=time_s, rms_mps2=(0.9, 1.1, 1.4), problems=noisy, reported=noisy, suspension=pointed,
+                    )  # fmt: skip
+                    wagon.events.append(_event(time_s, found, rng, bogie=bogie))
                 score = float(scores[i])
                 if judged:
                     trend = 0.98 * trend + 0.02 * score / 8.0
@@ -136,13 +161,15 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                     clean = clean + 1 if score <= lv["warning"] else 0
                     if mode != "CONFIRMED" and over_alarm >= CONFIRM_AFTER:
                         mode = "CONFIRMED"
-                        wagon.events.append(_event(time_s, EventKind.CONFIRMED, rng, {"fused_score": score}, {"diagnosis": dict(DIAGNOSIS), **bogie}))
+                        confirmed = ConfirmedDetails(**_decided(time_s, load), alarm_windows=KOfN(CONFIRM_AFTER, CONFIRM_AFTER), trigger=Trigger.WINDOWS,
+                                                     diagnosis=DIAGNOSIS)  # fmt: skip
+                        wagon.events.append(_event(time_s, confirmed, rng, {"fused_score": score}, bogie=bogie))
                     elif mode == "NORMAL" and score > lv["warning"]:
                         mode = "SUSPECTED"
-                        wagon.events.append(_event(time_s, EventKind.SUSPECTED, rng, {"fused_score": score}, dict(bogie)))
+                        wagon.events.append(_event(time_s, SuspectedDetails(**_decided(time_s, load)), rng, {"fused_score": score}, bogie=bogie))
                     elif mode == "SUSPECTED" and clean >= CLEAR_AFTER:
                         mode = "NORMAL"
-                        wagon.events.append(_event(time_s, EventKind.CLEARED, rng, {}, dict(bogie)))
+                        wagon.events.append(_event(time_s, ClearedDetails(**_decided(time_s, load), cleared=Mode.SUSPECTED), rng, bogie=bogie))
                 nan = float("nan")
                 cols["time_s"].append(time_s)
                 cols["judged"].append(judged)
@@ -158,15 +185,31 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
     return wagon
 
 
-def _event(time_s: float, kind: EventKind, rng: np.random.Generator, indicators: dict[str, float] | None = None, details: dict[str, Any] | None = None) -> Event:
+class _Decided(TypedDict):
+    window_start_s: float
+    window_end_s: float
+    load: LoadState
+    thresholds: dict[str, Threshold]
+    method: Method
+
+
+def _decided(time_s: float, load: str) -> _Decided:
+    """What a suspension event states of its window: the fused method's limits in the load state."""
+    lv = LEVELS[load]
+    limits = {"fused_score": Threshold(lv["warning"], lv["alarm"]), "fused_trend": Threshold(lv["trend_warning"], lv["trend_alarm"])}
+    return _Decided(window_start_s=time_s - 120.0, window_end_s=time_s, load=LoadState(load), thresholds=limits, method=Method.FUSED)
+
+
+def _event(time_s: float, details: EventDetails, rng: np.random.Generator, indicators: dict[str, float] | None = None, bogie: str = DEFAULT_BOGIE) -> Event:
     return Event(
         time_s=time_s,
-        kind=kind,
-        severity=DEFAULT_SEVERITY[kind],
+        kind=details.KIND,
+        severity=DEFAULT_SEVERITY[details.KIND],
         config_hash="fixture",
         indicators=indicators or {},
-        details=details or {},
+        details=details,
         event_id=f"{int(rng.integers(2**62)):016x}{int(rng.integers(2**62)):016x}",
+        bogie=bogie,
     )
 
 
@@ -195,7 +238,7 @@ def _summary(w: _Wagon, seqs: list[int]) -> dict[str, Any]:
         "state": state,
         "attention": ATTENTION[state] + (0.0 if trend is None or not trend_alarm else round(trend / trend_alarm, 4)),
         "last_event": last_event,
-        "diagnosis": dict(DIAGNOSIS) if spec.kind == "confirmed" else None,
+        "diagnosis": dict(DIAGNOSIS_BODY) if spec.kind == "confirmed" else None,
         "diagnosis_now": {},
         "sensor_problems": {"a3": ["noisy"]} if w.reported_fault else {},
         "trend": trend,

@@ -126,3 +126,13 @@ def test_calibrate_with_force_onto_a_folder_is_one_line_and_leaves_it(tmp_path: 
     windows_file = tmp_path / "a-file"
     windows_file.write_text("")
     assert "no such windows dataset" in _error(["fleet", "calibrate", "W2", "--fleet", str(root), "--windows", str(windows_file)], capsys)
+
+
+def test_fleet_analyze_that_analysed_nothing_exits_1_saying_so(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Every wagon skipped (here: a wagon-day of one unreadable recording) is no success a cron job can miss."""
+    day = tmp_path / "fleet" / "W1" / "2025-12-03"
+    day.mkdir(parents=True)
+    (day / "run.csv").write_text("not,a,recording\n")
+    assert main(["fleet", "analyze", str(tmp_path / "fleet"), "-o", str(tmp_path / "windows"), "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.splitlines()[-1].startswith("bogiemon: analysed nothing: no wagon-day of ") and "(see the reasons above)" in err

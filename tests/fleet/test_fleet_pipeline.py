@@ -15,6 +15,8 @@ import pytest
 
 from bogiemon.daemon.calibrate import calibrate
 from bogiemon.daemon.config import load_config
+from bogiemon.daemon.event_json import event_body
+from bogiemon.daemon.messages import EventMessage, decode
 from bogiemon.judgement.events import Event
 from bogiemon.drivers.atomic import temporary_name
 from bogiemon.daemon.replay import replay
@@ -41,6 +43,22 @@ def client():
     cluster.close()
 
 
+def _worker_settings() -> tuple[str | None, bool, float]:
+    import os
+
+    import dask.config
+    from dask.utils import parse_timedelta
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled"), parse_timedelta(dask.config.get("distributed.admin.tick.interval"))
+
+
+def test_the_local_clusters_workers_keep_glibcs_dynamic_mmap_threshold_and_sample_no_profile(client) -> None:
+    import os
+
+    assert set(client.run(_worker_settings).values()) == {(None, False, 1.0)}
+    assert "MALLOC_TRIM_THRESHOLD_" not in os.environ  # nor set here, in the cluster's process, for what it starts later
+
+
 def _fleet(root: Path, runs: tree.Runs) -> dict[str, list[Path]]:
     """W1 (commissioned): a healthy day, then a day where the spring breaks; W2 healthy, not commissioned."""
     w1, w2 = tree.wagon(root, "W1", commissioned=True), tree.wagon(root, "W2", commissioned=False)
@@ -65,15 +83,16 @@ class _Collect(EventSink):
 
 def _comparable(event: Event) -> tuple[object, ...]:
     return (event.kind, event.time_s, event.severity, json.dumps(dict(event.indicators), sort_keys=True),
-            json.dumps(dict(event.details), sort_keys=True))  # fmt: skip
+            json.dumps(event_body(event)["details"], sort_keys=True))  # fmt: skip
 
 
 def test_fleet_judge_gives_the_same_events_as_replay_of_the_same_recordings(tmp_path: Path, runs: tree.Runs, client) -> None:
     files = _fleet(tmp_path / "fleet", runs)
     analyze_fleet(tmp_path / "fleet", tmp_path / "windows", client=client)
     judge_fleet(tmp_path / "windows", tmp_path / "judged")
-    offline = [json.loads(line) for line in (tmp_path / "judged" / "events.jsonl").read_text().splitlines()]
-    offline_w1 = [Event.from_dict(e) for e in offline if e["wagon_id"] == "W1"]
+    lines = (tmp_path / "judged" / "events.jsonl").read_text().splitlines()
+    offline = [json.loads(line) for line in lines]
+    offline_w1 = [decode(EventMessage, line.encode()).to_event() for line, e in zip(lines, offline, strict=True) if e["wagon_id"] == "W1"]
 
     config = scan_fleet(tmp_path / "fleet").wagon("W1").config
     sink = _Collect()
@@ -118,7 +137,7 @@ def test_replay_and_fleet_judge_give_the_same_verdict_on_every_window_of_a_day_o
     analyze_fleet(tmp_path / "fleet", tmp_path / "windows", runner=InProcess())
     judge_fleet(tmp_path / "windows", tmp_path / "judged")
     offline = _series_rows(pq.read_table(tmp_path / "judged" / "series" / "wagon=W1" / "part-0.parquet"))
-    offline_events = [Event.from_dict(json.loads(line)) for line in (tmp_path / "judged" / "events.jsonl").read_text().splitlines()]
+    offline_events = [decode(EventMessage, line.encode()).to_event() for line in (tmp_path / "judged" / "events.jsonl").read_text().splitlines()]
 
     verdicts: list[WindowVerdict] = []
     sink = _Collect()

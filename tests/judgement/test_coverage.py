@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from bogiemon.judgement.coverage import CoverageState, CoverageTracker
-from bogiemon.judgement.events import EventKind, Severity
+from bogiemon.judgement.events import EventKind, NotJudgedDetails, Severity
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 
 HOP_S = 10.0
+UNLIKE = "between the commissioned load states (the wagon's line says neither, the load model full, the nearer state tare)"
 QUIET = ChannelStats((9.81,) * 3, (12.0,) * 3, (0.0,) * 3, (0.002,) * 3, (0.0,) * 3)
 
 
@@ -23,7 +24,7 @@ def feed(tracker: CoverageTracker, outcomes: str, start: int = 0) -> list[tuple[
     """j: judged, u: running unlike the commissioning, g: gated or a sensor fault (neither)."""
     out = []
     for i, o in enumerate(outcomes, start=start):
-        out += [(i, e.kind) for e in tracker.update(window(i), o == "j", o == "u", {"load_distance": 7.5})]
+        out += [(i, e.kind) for e in tracker.update(window(i), o == "j", UNLIKE if o == "u" else None)]
     return out
 
 
@@ -44,12 +45,14 @@ def test_standing_and_sensor_faults_add_no_unjudged_running() -> None:
 def test_the_not_judged_event_says_what_to_do_and_carries_the_figures() -> None:
     tracker = CoverageTracker("cfg", HOP_S, 600.0)
     feed(tracker, "j")
-    (event,) = [e for i in range(1, 61) for e in tracker.update(window(i), False, True, {"load_distance": 7.5})]
+    (event,) = [e for i in range(1, 61) for e in tracker.update(window(i), False, UNLIKE)]
     assert event.kind is EventKind.NOT_JUDGED and event.severity is Severity.WARNING and event.time_s == window(60).end_s
-    assert event.details["message"].startswith("not judged for the last 0.2 h of running: the wagon is unlike its commissioning")
-    assert "commission it again" in event.details["message"]
-    assert event.details["unjudged_running_s"] == 600.0 and event.details["last_judged_s"] == window(0).end_s
-    assert event.details["load_distance"] == 7.5
+    details = event.details
+    assert isinstance(details, NotJudgedDetails)
+    assert details.message.startswith("not judged for the last 0.2 h of running: the wagon is unlike its commissioning")
+    assert "commission it again" in details.message
+    assert details.unjudged_running_s == 600.0 and details.last_judged_s == window(0).end_s
+    assert details.unlike == UNLIKE and (details.window_start_s, details.window_end_s) == (window(60).start_s, window(60).end_s)
 
 
 def test_the_state_survives_a_restart_and_an_old_state_starts_empty() -> None:

@@ -6,7 +6,7 @@ import pytest
 
 from bogiemon.judgement.vocabulary import LoadState
 from bogiemon.judgement.decision import Decider, DecisionSettings, DecisionState, Level, Mode, Threshold
-from bogiemon.judgement.events import EventKind, Severity
+from bogiemon.judgement.events import ConfirmedDetails, EventKind, KOfN, Severity, SuspectedDetails, Trigger
 from bogiemon.detection import BogieGeometry, WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 
@@ -80,7 +80,7 @@ def test_the_suspicion_states_how_many_windows_raised_it() -> None:
     run(decider, [0.16, 0.0])
     _, events = decider.update(window(0.16, t=20.0), LoadState.FULL)
     (event,) = events
-    assert event.kind is EventKind.SUSPECTED and event.details["warning_windows"] == "2 of 3"
+    assert event.kind is EventKind.SUSPECTED and isinstance(event.details, SuspectedDetails) and event.details.warning_windows == KOfN(2, 3)
 
 
 def test_clearing_needs_consecutive_windows_below_warning() -> None:
@@ -108,7 +108,11 @@ def test_confirmed_event_carries_the_indicators_that_fired_and_the_config_hash()
     assert event.indicators == {"i4_norm": -0.4}
     assert event.config_hash == "abc123"
     assert event.time_s == 80.0
-    assert event.details["thresholds"] == {"i4_norm": {"center": 0.05, "warning": 0.1, "alarm": 0.2}}
+    details = event.details
+    assert isinstance(details, ConfirmedDetails)
+    assert details.thresholds == {"i4_norm": Threshold(warning=0.1, alarm=0.2, center=0.05)}
+    assert details.alarm_windows == KOfN(3, 3) and details.trigger is Trigger.WINDOWS
+    assert (details.window_start_s, details.window_end_s, details.load) == (20.0, 80.0, LoadState.FULL)
 
 
 def test_state_survives_a_round_trip_and_a_restart() -> None:

@@ -13,6 +13,7 @@ from bogiemon.judgement.diagnosis import (
     MIN_SCORE,
     NO_EVIDENCE,
     PAIR_CONFIDENCE_MAX,
+    Diagnosis,
     SIGN_BANDS,
     diagnose,
     diagonal_of,
@@ -21,7 +22,7 @@ from bogiemon.judgement.diagnosis import (
     raw_shift,
     sign_evidence,
 )
-from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.events import ConfirmedDetails, EventKind
 from bogiemon.judgement.models import UNKNOWN, Baseline, Levels, whitening_of
 from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
@@ -84,7 +85,7 @@ def test_a_softer_corner_is_named_with_its_diagonal_from_the_signs_of_its_shift(
     b = baseline()
     d = diagnose(windows_of(shift_of(corner, load, 6.0), b), b, load)
     assert (d.corners, d.kind, d.windows) == (pair(corner), UNKNOWN, 3)
-    assert d.corner == f"{corner.value} or {diagonal_of(corner).value}" and d.as_dict()["corners"] == [c.value for c in pair(corner)]
+    assert d.corner == f"{corner.value} or {diagonal_of(corner).value}"
     assert d.corner_confidence == PAIR_CONFIDENCE_MAX < 1.0 and d.cosine == pytest.approx(1.0)  # never a certainty
 
 
@@ -123,14 +124,16 @@ def test_bands_that_disagree_in_sign_give_unknown() -> None:
     healthy = healthy_covariance(b)
     d = judge_signs(sign_evidence(shift, healthy, healthy, (low, high)), 3)
     assert d.corner == UNKNOWN and d.corners == ()
-    assert d.best_match.endswith("(leading-left if softer)") and d.cosine < 1.0
+    assert d.best_match.endswith(": a band contradicts the pitch-roll sign, no pair named") and d.cosine < 1.0
+    assert not any(c.value in d.best_match for c in Corner)  # an unknown corner names no pair
 
 
 def test_a_shift_within_its_noise_gives_unknown() -> None:
     b = baseline()
     d = diagnose(windows_of(shift_of(Corner.TRAILING_RIGHT, "full", 1.5), b), b, "full")
     assert d.corner == UNKNOWN
-    assert d.best_match.endswith("(trailing-right if softer)")
+    assert d.best_match.endswith(": the pitch-roll sign is within the noise (under 2.5 sd), no pair named")
+    assert not any(c.value in d.best_match for c in Corner)  # an unknown corner names no pair
 
 
 def test_the_pair_needs_the_pitch_roll_sign_alone() -> None:
@@ -183,7 +186,12 @@ def test_no_shifts_or_a_load_state_without_sign_bands_give_no_evidence() -> None
     b = baseline()
     assert diagnose([], b, "full") == NO_EVIDENCE
     assert diagnose(windows_of(shift_of(Corner.LEADING_LEFT, "full", 6.0), b), b, "half") == NO_EVIDENCE
-    assert set(NO_EVIDENCE.as_dict()) == {"corner", "corners", "kind", "corner_confidence", "kind_confidence", "best_match", "cosine", "windows"}
+    assert NO_EVIDENCE.stated() == NO_EVIDENCE
+
+
+def test_a_diagnosis_as_an_event_states_it_has_its_confidences_and_cosine_to_three_decimals() -> None:
+    d = Diagnosis(pair(Corner.LEADING_LEFT), UNKNOWN, 0.94649, 0.00049, "words", -0.12351, 3)
+    assert d.stated() == Diagnosis(pair(Corner.LEADING_LEFT), UNKNOWN, 0.946, 0.0, "words", -0.124, 3)
 
 
 @settings(max_examples=40, deadline=None)
@@ -241,7 +249,8 @@ def test_the_decider_names_the_physical_corner_whatever_corners_the_sensors_are_
     spectra = sensor_spectra(physical, geometry)
     events = [e for i in range(3) for e in decider.update(window(spectra, 10.0 * i), LoadState.FULL)[1]]
     (confirmed,) = [e for e in events if e.kind is EventKind.CONFIRMED]
-    assert confirmed.details["diagnosis"]["corners"] == ["trailing-right", "leading-left"]
+    assert isinstance(confirmed.details, ConfirmedDetails) and confirmed.details.diagnosis is not None
+    assert confirmed.details.diagnosis.corners == (Corner.TRAILING_RIGHT, Corner.LEADING_LEFT)
     # The channels themselves differ from the paper's layout's: only the modal map undoes them.
     paper = sensor_spectra(physical, BogieGeometry())
     assert layout == LAYOUTS[0] or not np.allclose(spectra.matrix, paper.matrix)
@@ -302,7 +311,8 @@ def test_a_simulated_broken_rear_coil_is_named_at_its_corner_or_unknown(commissi
         confirmed = [e for e in events if e.kind is EventKind.CONFIRMED]
         assert confirmed, (corner, [e.kind for e in events])
         assert confirmed[0].time_s > 90.0
-        named.append(tuple(confirmed[0].details["diagnosis"]["corners"]))
+        assert isinstance(confirmed[0].details, ConfirmedDetails) and confirmed[0].details.diagnosis is not None
+        named.append(tuple(c.value for c in confirmed[0].details.diagnosis.corners))
     # Never a pair without the broken coil's corner. Named only where the three confirming
     # windows' 4-8 Hz pitch-roll coupling is clear: they confirm 50-60 s after the break, so the
     # oldest of them holds little of the fault.

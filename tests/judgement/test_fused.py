@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 import pytest
 
 from bogiemon.judgement.vocabulary import LoadState, Method, Mode
 from bogiemon.judgement.decision import FUSED_SCORE, FUSED_TREND, Decider, DecisionSettings, DecisionState, Level
-from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.events import ConfirmedDetails, EventDetails, EventKind, Trigger
 from bogiemon.lab.modelfit import trend_runs
 from bogiemon.judgement.models import Baseline, Levels
-from bogiemon.detection import BogieGeometry, WindowIndicators
+from bogiemon.judgement.rules import Threshold
+from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 from bogiemon.detection.features import COUPLING_FEATURES, COUPLING_NAMES, coupling_vector
 from bogiemon.detection.spectra import BANDS_HZ, WindowSpectra
@@ -51,7 +50,7 @@ def settings(baseline: Baseline = BASELINE) -> DecisionSettings:
     return DecisionSettings({}, confirm_k=3, confirm_n=5, clear_after_windows=2, method=Method.FUSED, baselines={LoadState.FULL: baseline})
 
 
-def feed(decider: Decider, xs: list[np.ndarray]) -> list[tuple[int, EventKind, Mapping[str, Any]]]:
+def feed(decider: Decider, xs: list[np.ndarray]) -> list[tuple[int, EventKind, EventDetails]]:
     out = []
     for i, x in enumerate(xs):
         _, events = decider.update(window(x, HOP_S * i), LoadState.FULL)
@@ -83,8 +82,10 @@ def test_three_alarm_windows_of_five_confirm_by_windows() -> None:
     events = feed(Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S), [gross] * 3)
     kinds = [(i, k) for i, k, _ in events]
     assert kinds == [(1, EventKind.SUSPECTED), (2, EventKind.CONFIRMED)]
-    assert events[-1][2]["trigger"] == "windows"
-    assert events[-1][2]["diagnosis"]["corner"] == "leading-left or trailing-right"
+    details = events[-1][2]
+    assert isinstance(details, ConfirmedDetails) and details.diagnosis is not None
+    assert details.trigger is Trigger.WINDOWS
+    assert details.diagnosis.corner == "leading-left or trailing-right"
 
 
 def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> None:
@@ -101,9 +102,10 @@ def test_a_small_standing_shift_is_confirmed_by_the_trend_not_the_windows() -> N
     # The first window at which 12.5 (1 - (1 - w)^(i+1))^2 reaches the trend alarm level of 8.
     expected = next(k for k in range(200) if 12.5 * (1 - (1 - weight) ** (k + 1)) ** 2 >= 8.0)
     assert i == expected
-    assert details["trigger"] == "trend"
-    assert details["diagnosis"]["corners"] == ["leading-left", "trailing-right"] and details["diagnosis"]["kind"] == "unknown"
-    assert details["trend"] == pytest.approx(12.5 * (1 - (1 - weight) ** (i + 1)) ** 2)
+    assert isinstance(details, ConfirmedDetails) and details.diagnosis is not None
+    assert details.trigger is Trigger.TREND
+    assert details.diagnosis.corners == (Corner.LEADING_LEFT, Corner.TRAILING_RIGHT) and details.diagnosis.kind == "unknown"
+    assert details.trend == pytest.approx(12.5 * (1 - (1 - weight) ** (i + 1)) ** 2)
     assert [k for _, k, _ in events][0] is EventKind.SUSPECTED
 
 
@@ -158,6 +160,6 @@ def test_a_cleared_alarm_needs_the_trend_back_below_its_warning() -> None:
 def test_the_confirmed_event_names_the_trend_and_its_levels() -> None:
     decider = Decider(settings(), "cfg", geometry=GEOMETRY, hop_s=HOP_S)
     events = feed(decider, [np.full(N, 0.25)] * 3)
-    limits = events[-1][2]["thresholds"]
-    assert limits[FUSED_TREND] == {"center": 0.0, "warning": 4.0, "alarm": 8.0}
-    assert limits[FUSED_SCORE] == {"center": 0.0, "warning": 20.0, "alarm": 40.0}
+    details = events[-1][2]
+    assert isinstance(details, ConfirmedDetails)
+    assert details.thresholds == {FUSED_SCORE: Threshold(warning=20.0, alarm=40.0), FUSED_TREND: Threshold(warning=4.0, alarm=8.0)}

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import ConfigError, parse_config
-from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.events import EventKind, SensorFaultDetails
 from bogiemon.judgement.gating import Gate
 from bogiemon.judgement.settings import HealthSettings
 from bogiemon.judgement.health import SensorProblem, assess_window, coherence_noisy_channel, same_rail_pair
@@ -17,6 +17,7 @@ from bogiemon.detection import BogieGeometry, Corner, WindowIndicators
 from bogiemon.detection.channel_stats import NOT_MEASURED, ChannelStats
 from bogiemon.detection.spectra import BANDS_HZ, N_BANDS, WindowSpectra
 from bogiemon.drivers.base import SensorStatus
+from tests.judgement.event_examples import details_as
 
 SETTINGS = HealthSettings()
 OK = SensorStatus.OK
@@ -104,9 +105,9 @@ def test_tracker_reports_again_when_a_new_problem_appears() -> None:
     first = tracker.update(window(rms=(0.001, 1, 1)), assess_window(window(rms=(0.001, 1, 1)), SETTINGS))
     w = window(rms=(0.001, 1, 1), repeat=(0, 0.9, 0))
     second = tracker.update(w, assess_window(w, SETTINGS))
-    assert first[0].details["problems"] == {"a1": ["flat"]}
-    assert second[0].details["problems"] == {"a1": ["flat"], "a2": ["stuck"]}
-    assert second[0].details["reported"] == {"a1": ["flat"], "a2": ["stuck"]}
+    assert details_as(first[0], SensorFaultDetails).problems == {"a1": ("flat",)}
+    assert details_as(second[0], SensorFaultDetails).problems == {"a1": ("flat",), "a2": ("stuck",)}
+    assert details_as(second[0], SensorFaultDetails).reported == {"a1": ("flat",), "a2": ("stuck",)}
 
 
 def test_a_problem_that_comes_and_goes_while_the_fault_lasts_is_reported_once() -> None:
@@ -115,7 +116,7 @@ def test_a_problem_that_comes_and_goes_while_the_fault_lasts_is_reported_once() 
     events = []
     for w in (flat, flat_and_stuck, flat, flat_and_stuck, flat):
         events += tracker.update(w, assess_window(w, SETTINGS))
-    assert [e.details["problems"] for e in events] == [{"a1": ["flat"]}, {"a1": ["flat", "stuck"]}]
+    assert [details_as(e, SensorFaultDetails).problems for e in events] == [{"a1": ("flat",)}, {"a1": ("flat", "stuck")}]
 
 
 def test_a_window_with_a_standing_hop_is_non_stationary_not_judged() -> None:

@@ -16,6 +16,8 @@ from bogiemon.judgement.vocabulary import LoadState
 from bogiemon.detection import Corner, IndicatorStream
 from bogiemon.simulator import Fault, Scenario, SpeedProfile, simulate, simulate_batch
 from bogiemon.simulator.run import write_recording
+from bogiemon.judgement.events import ConfirmedDetails
+from tests.judgement.event_examples import details_as
 
 CONFIG = load_config(None)
 ALARMS = {"SUSPECTED", "CONFIRMED"}
@@ -98,4 +100,6 @@ def test_a_fault_whose_windows_lie_outside_every_commissioned_load_state_is_repo
     assert all(v.outcome is Outcome.JUDGED for v in outside)
     assert "CONFIRMED" in _kinds(verdicts)
     confirmed = next(e for v in verdicts for e in v.events if e.kind.value == "CONFIRMED")
-    assert confirmed.details["load"] == "tare" and confirmed.details["load_distance"] > 1.0
+    details = details_as(confirmed, ConfirmedDetails)
+    assert details.load is LoadState.TARE and details.running is not None and details.running.load_distance is not None
+    assert details.running.load_distance > 1.0

@@ -14,7 +14,7 @@ from bogiemon.judgement.vocabulary import LoadState
 from bogiemon.detection import BogieGeometry
 from bogiemon.judgement.decision import Decider, DecisionSettings
 from bogiemon.judgement.events import EventKind
-from bogiemon.judgement.rules import Level, Threshold, first_confirmation, fit_threshold, level_of, suspicion_k, sustained_level
+from bogiemon.judgement.rules import Level, Threshold, first_confirmation, fit_threshold, level_of, suspicion_k, sustained_level, two_sided_z
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 
@@ -34,6 +34,11 @@ def test_fit_threshold_is_the_stated_rule(values: list[float], warning_rate: flo
         (np.median(x), warning, alarm, sigma, d.max(), len(x)), rel=1e-12, abs=1e-300
     )
     assert isinstance(fit, Threshold) and fit.level(fit.center) is Level.OK
+
+
+@given(st.floats(1e-12, 0.9))
+def test_two_sided_z_is_scipys_normal_quantile(rate: float) -> None:
+    assert two_sided_z(rate) == pytest.approx(stats.norm.isf(rate / 2), rel=1e-12)
 
 
 def test_fit_threshold_refuses_no_values() -> None:

@@ -8,6 +8,7 @@ import dataclasses
 import pytest
 
 from bogiemon.daemon.config import BogiemonConfig
+from bogiemon.judgement.events import SensorFaultDetails, SuspensionHint
 from bogiemon.judgement.health import SensorProblem, WindowHealth
 from bogiemon.judgement.gating import Gate
 from bogiemon.judgement.sensor_tracker import HealthState, HealthTracker
@@ -39,7 +40,8 @@ def test_a_window_whose_noise_the_floor_alone_sees_is_judged_and_the_sensor_repo
     verdicts = [judge.judge(w) for w in frame_run(11, hiss_mps2=(0.0, 0.4, 0.0))]
     assert all(v.health.floor_only == ("a2",) and v.outcome is Outcome.JUDGED for v in verdicts)
     faults = [e for v in verdicts for e in v.events if e.kind.value == "SENSOR_FAULT"]
-    assert len(faults) == 1 and faults[0].details["problems"] == {"a2": ["noisy"]} and "suspension" not in faults[0].details
+    (fault,) = [e.details for e in faults if isinstance(e.details, SensorFaultDetails)]
+    assert len(faults) == 1 and fault.problems == {"a2": ("noisy",)} and fault.suspension is None
     assert judge.health.faulted and not judge.health.holds_judgement
 
 
@@ -67,12 +69,13 @@ def test_a_sensor_fault_is_told_again_when_the_couplings_first_point_at_a_corner
     window = frame_run(11)[0]
     tracker = HealthTracker("h")
     first = tracker.update(window, _health(), holds=False)
-    pointed = {"corners": ["trailing-left", "leading-right"], "fused_score": 80.0, "alarm": 67.0, "best_match": "..."}
+    pointed = SuspensionHint(("trailing-left", "leading-right"), 80.0, 67.0, "...")
     second = tracker.update(window, _health(), holds=False, suspension=pointed)
     third = tracker.update(window, _health(), holds=False, suspension=pointed)
     assert [e.kind.value for e in first + second] == ["SENSOR_FAULT", "SENSOR_FAULT"] and third == []
-    assert "suspension" not in first[0].details and second[0].details["suspension"] == pointed
-    assert second[0].details["reported"] == {"a3": ["noisy"]}
+    told_first, told_again = first[0].details, second[0].details
+    assert isinstance(told_first, SensorFaultDetails) and isinstance(told_again, SensorFaultDetails)
+    assert told_first.suspension is None and told_again.suspension == pointed and told_again.reported == {"a3": ("noisy",)}
 
 
 def test_the_sensor_state_keeps_whether_it_holds_the_judgement_and_an_older_state_holds_it() -> None:

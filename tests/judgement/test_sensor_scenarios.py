@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bogiemon.daemon.config import BogiemonConfig
-from bogiemon.judgement.events import EventKind
+from bogiemon.judgement.events import EventKind, SensorFaultDetails
 from bogiemon.judgement.gating import Gate
 from bogiemon.judgement.structure import learn_structure
 from bogiemon.daemon.monitor import Monitor
@@ -24,6 +24,7 @@ from bogiemon.detection import IndicatorStream, WindowIndicators
 from bogiemon.detection.channel_stats import channel_stats_reference
 from bogiemon.drivers.base import Block
 from bogiemon.simulator import Scenario, SensorModel, SpeedProfile, simulate
+from tests.judgement.event_examples import details_as
 
 FS_HZ = 500.0
 DURATION_S = 180.0
@@ -76,7 +77,7 @@ def test_a_damaged_channel_is_a_sensor_fault_and_never_a_suspension_alarm(health
     kinds = {e.kind for e in events}
     assert not kinds & SUSPENSION_KINDS
     faults = [e for e in events if e.kind is EventKind.SENSOR_FAULT]
-    assert faults and problem in faults[0].details["problems"][channel]
+    assert faults and problem in details_as(faults[0], SensorFaultDetails).problems[channel]
     assert monitor.counters.judged == 0 or damage is stuck  # stuck: the first windows are still whole
 
 
@@ -87,8 +88,8 @@ def test_a_channel_that_froze_two_seconds_before_a_window_ends_is_stuck_in_that_
     accel[int(128 * FS_HZ) :, 1] = accel[int(128 * FS_HZ), 1]
     monitor, events = feed(accel, tmp_path)
     faults = [e for e in events if e.kind is EventKind.SENSOR_FAULT]
-    assert faults and faults[0].details["problems"] == {"a2": ["stuck"]}
-    assert faults[0].details["window_end_s"] == pytest.approx(1.7e9 + 130.0)
+    assert faults and details_as(faults[0], SensorFaultDetails).problems == {"a2": ("stuck",)}
+    assert details_as(faults[0], SensorFaultDetails).window_end_s == pytest.approx(1.7e9 + 130.0)
     assert monitor.counters.judged == 1  # the window 0-120 s only
     assert not {e.kind for e in events} & SUSPENSION_KINDS
 
@@ -182,7 +183,7 @@ def test_a_sensor_with_white_noise_far_below_the_rms_check_is_reported_noisy_by_
                             sensor=SensorModel(noise_mps2=0.01))).accel_mps2  # fmt: skip
     _, events = feed(add_noise(run, channel), tmp_path)
     faults = [e for e in events if e.kind is EventKind.SENSOR_FAULT]
-    assert faults and faults[-1].details["reported"] == {f"a{channel + 1}": ["noisy"]}
+    assert faults and details_as(faults[-1], SensorFaultDetails).reported == {f"a{channel + 1}": ("noisy",)}
     assert not {e.kind for e in events} & SUSPENSION_KINDS
 
 

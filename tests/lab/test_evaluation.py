@@ -12,6 +12,7 @@ import pytest
 
 from bogiemon.daemon.config import load_config
 from bogiemon.detection import Corner
+from bogiemon.judgement.events import ConfirmedDetails, Event, EventKind, Trigger
 from bogiemon.lab.robust.evaluate import EvaluateError, daemon_methods, load_or_simulate, report_sections
 from bogiemon.lab.robust.fleet import (
     HEALTHY,
@@ -24,10 +25,11 @@ from bogiemon.lab.robust.fleet import (
     simulate_plan,
 )
 from bogiemon.lab.robust.wagons import make_wagon
-from bogiemon.lab.robust.judge import JudgedRun, Outcome, judge_runs, sequences
+from bogiemon.lab.robust.judge import JudgedRun, judge_runs, sequences
 from bogiemon.lab.robust.judge import _sequence_result as sequence_result
 from bogiemon.lab.robust.report import write_report
 from bogiemon.lab.robust.score import score_method
+from tests.judgement.event_examples import details_as, event_of
 
 CONFIG = load_config(None)
 
@@ -94,8 +96,8 @@ def test_sensor_damage_changes_only_the_named_channels() -> None:
         assert touched == set(what.split("-")), damage
 
 
-def judged(events: list[tuple[str, float, dict]]) -> JudgedRun:
-    return JudgedRun(tuple(Outcome(k, t, d) for k, t, d in events), ())
+def judged(events: list[Event]) -> JudgedRun:
+    return JudgedRun(tuple(events), ())
 
 
 def test_a_sequence_counts_running_time_from_the_onset_across_its_runs() -> None:
@@ -106,11 +108,14 @@ def test_a_sequence_counts_running_time_from_the_onset_across_its_runs() -> None
                    Conditions("erri-low", SpeedProfile(((0.0, 80.0),)), False), (), ())
         for k in range(3)
     ]  # fmt: skip
-    events = [judged([]), judged([("SUSPECTED", 300.0, {})]), judged([("CONFIRMED", 200.0, {"trigger": "trend", "diagnosis": {"corner": "leading-left"}})])]
+    confirmed = event_of(EventKind.CONFIRMED, 200.0)
+    by_trend = Event.of(200.0, replace(details_as(confirmed, ConfirmedDetails), trigger=Trigger.TREND), "c0ffee")
+    events = [judged([]), judged([event_of(EventKind.SUSPECTED, 300.0)]), judged([by_trend])]
     result = sequence_result(runs, events)
     assert result.confirmed_after_s == pytest.approx(450.0 - 150.0 + 450.0 + 200.0)
     assert result.fault_running_s == pytest.approx(3 * 450.0 - 150.0)
-    assert result.trigger == "trend" and not result.confirmed_before_onset
+    assert result.trigger is Trigger.TREND and not result.confirmed_before_onset
+    assert result.diagnosis == details_as(confirmed, ConfirmedDetails).diagnosis
 
 
 @pytest.fixture(scope="module")

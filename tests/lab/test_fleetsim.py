@@ -184,6 +184,12 @@ def test_every_recording_reads_back_at_the_plans_rate_and_length(recordings) -> 
         assert rec.fs_hz == pytest.approx(PLAN.fs_hz, rel=1e-9)
 
 
+def test_the_recordings_are_compressed_at_zlibs_fastest_level(tree) -> None:
+    root, _, _ = tree
+    files = sorted(root.glob("*/*/*.csv.gz"))
+    assert len(files) == 15 and {f.read_bytes()[8] for f in files} == {4}  # gzip's header: 4 is the fastest level
+
+
 def test_recording_times_are_unix_seconds_within_their_day_folders_date_at_the_planned_start(recordings, tree) -> None:
     _, truth, _ = tree
     starts = {r.file: r.start_s for w in truth.wagons for r in w.runs}

@@ -12,13 +12,15 @@ import pytest
 
 from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import BogiemonConfig, load_config
-from bogiemon.judgement.events import Event
+from bogiemon.judgement.events import ConfirmedDetails, Event, SensorFaultDetails
+from bogiemon.judgement.vocabulary import LoadSource
 from bogiemon.judgement.verdict import WindowJudge
 from bogiemon.detection import Corner, IndicatorStream
 from bogiemon.lab.robust.fleet import EXPECTED_PROBLEM, HEALTHY, SENSOR_DAMAGE, RunSpec, damage_sensors, scenario_for
 from bogiemon.lab.robust.wagons import make_wagon
 from bogiemon.lab.robust.judge import with_fragment
 from bogiemon.simulator.run import simulate_batch
+from tests.judgement.event_examples import details_as
 
 CONFIG = load_config(None)
 SETTINGS, GEOMETRY = CONFIG.processing_settings(), CONFIG.bogie_geometry()
@@ -113,9 +115,11 @@ def test_a_broken_spring_is_confirmed_at_its_corner(fleet_runs, commissioned, lo
     assert first.time_s > 150.0  # after the spring broke, never before
     # The diagonal pair from the geometry, or "unknown" when the pitch-roll sign is not clear: never
     # a pair without the corner (judgement/diagnosis.py).
-    named = first.details["diagnosis"]["corners"]
-    assert named == [] or corner.value in named
-    assert first.details["load"] == load and first.details["load_source"] == "commissioned"
+    details = details_as(first, ConfirmedDetails)
+    assert details.diagnosis is not None
+    named = details.diagnosis.corners
+    assert named == () or corner in named
+    assert details.load == load and details.running is not None and details.running.load_source is LoadSource.COMMISSIONED
 
 
 # "hiss a2" (white noise well below the frame's own signal) is measured by the transfer evaluation
@@ -128,5 +132,5 @@ def test_a_damaged_sensor_is_a_sensor_fault_never_a_suspension_alarm(fleet_runs,
     kinds = {e.kind.value for e in events}
     assert not kinds & {"SUSPECTED", "CONFIRMED"}, kinds
     problem, channels = EXPECTED_PROBLEM[damage]
-    named = {(ch, p) for e in events if e.kind.value == "SENSOR_FAULT" for ch, ps in e.details["problems"].items() for p in ps}
+    named = {(ch, p) for e in events if isinstance(e.details, SensorFaultDetails) for ch, ps in e.details.problems.items() for p in ps}
     assert {(ch, problem) for ch in channels} <= named, named

@@ -115,3 +115,41 @@ def test_the_cache_falls_back_to_no_cache_when_no_location_is_writable(monkeypat
 
     assert kernel._jit()(func)() == 1
     assert calls == [True, False]
+
+
+@pytest.mark.parametrize("offset_m", [0.0, 1.4])
+def test_six_channels_read_both_frames_like_the_reference_an_off_centre_carbody_too(offset_m: float) -> None:
+    """Channels 4-6 are the trailing frame's at the same named corners; a carbody whose centre of
+    mass lies off centre (ends loaded unequally) moves the bowls in the kernel as in the reference."""
+    params = default_parameter_set()
+    params = {**params, "vehicle": {**params["vehicle"], "carbody": {**params["vehicle"]["carbody"], "centre_of_mass_offset_m": offset_m}}}
+    faults = (parse_fault("type_a:rear_outer:0.0@2:leading-left"),)
+    model = build_model(params, "full", faults)
+    assert model.params.carbody_centre_offset_m == offset_m
+    rng = np.random.default_rng(3)
+    track = generate_track("erri-high", 400.0, rng, ds_m=0.05)
+    state = static_equilibrium(model)
+    speed = SpeedProfile.constant(80.0)
+    geometry = BogieGeometry(corners=(Corner.TRAILING_RIGHT, Corner.LEADING_LEFT, Corner.LEADING_RIGHT))
+    sensors, g = geometry.positions_m(), model.params.gravity_mps2
+    n_steps, front0 = 800, 30.0123
+    ref_out = np.empty((n_steps, 6))
+    ref_state, front = state, front0
+    for n in range(n_steps):
+        box_z, box_v = box_motion_reference(model.params, track, front, speed.speed_mps(n * DT_S))
+        ref_state, accel = step_reference(model, ref_state, box_z, box_v, DT_S)
+        for frame in range(2):
+            base = 3 + 3 * frame
+            ref_out[n, 3 * frame : 3 * frame + 3] = accel[base] + sensors[:, 0] * accel[base + 1] + sensors[:, 1] * accel[base + 2] + g
+        front += DT_S * speed.speed_mps(0.0)
+    times, speeds = speed.arrays_mps()
+    out = np.empty((1, n_steps, 6))
+    kernel.advance(
+        state.q[None].copy(), state.v[None].copy(), state.slider[None].copy(), np.array([front0]), np.zeros(1), np.array([n_steps]),
+        kernel.pack_vehicle(model.params, track.ds_m, DT_S)[None], model.corner_table()[None], times[None], speeds[None],
+        np.array([times.size]), track.left_m[None], track.right_m[None], sensors[None], kernel.IDENTITY_SOS,
+        np.zeros((1, 1, 2, 6)), 1, out,
+    )  # fmt: skip
+    np.testing.assert_allclose(out[0], ref_out, rtol=1e-9, atol=1e-9)
+    # The trailing frame (broken spring) moves otherwise than the leading one.
+    assert np.std(out[0, :, 3:] - out[0, :, :3]) > 0.1

@@ -65,20 +65,24 @@ def _rails_at(track: TrackProfile, front_m: float, offsets, speed_mps: float):
     return z, rate
 
 
-def _kernel_run(model, state, track, speed_mps, n_steps, sensor_p, geometry, lateral, factor=1):
-    """model B's kernel on one scenario from `state`: (outputs (n_steps // factor, 3), final state)."""
+def _kernel_run(model, state, track, speed_mps, n_steps, sensor_p, geometry, lateral, factor=1, sensor_2=None, lateral_2=None):
+    """model B's kernel on one scenario from `state`: (outputs (n_steps // factor, 3 or 6), final
+    state); with sensor_2 and lateral_2, the trailing frame's three channels too."""
     rate_hz = 1.0 / DT_S
+    parts = (sensor_p,) if sensor_2 is None else (sensor_p, sensor_2)
+    laterals = np.array([lateral] if sensor_2 is None else [lateral, lateral_2])
+    n_channels = 3 * len(parts)
     q, v, w = state.q[None].copy(), state.v[None].copy(), state.w[None].copy()
     sos = sensors.chain_sos(sensor_p, rate_hz, rate_hz / factor)[None]
     g = model.params.gravity_mps2
-    zi = (signal.sosfilt_zi(sos[0])[:, :, None] * np.full(3, g))[None].copy()
-    out = np.empty((1, n_steps // factor, 3))
+    zi = (signal.sosfilt_zi(sos[0])[:, :, None] * np.full(n_channels, g))[None].copy()
+    out = np.empty((1, n_steps // factor, n_channels))
     kernel.advance(
         q, v, w, np.array([model.params.axle_offsets_m[-1] + 5.0123]), np.zeros(1), np.array([n_steps]),
         kernel.pack_vehicle(model.params, track.ds_m, DT_S)[None], model.corner_table()[None],
         np.zeros((1, 1)), np.full((1, 1), speed_mps), np.ones(1, dtype=np.int64), track.left_m[None], track.right_m[None],
-        lateral[None], np.zeros(1), rate_hz, geometry.positions_m()[None], np.array(sensor_p.cross_axis)[None],
-        sensors.skew_steps(sensor_p, DT_S)[None], sos, zi, np.full((1, 3, sensors.DELAY_LINE), g),
+        laterals[None], np.zeros(1), rate_hz, geometry.positions_m()[None], np.concatenate([p.cross_axis for p in parts])[None],
+        np.concatenate([sensors.skew_steps(p, DT_S) for p in parts])[None], sos, zi, np.full((1, n_channels, sensors.DELAY_LINE), g),
         np.zeros(1, dtype=np.int64), factor, out, np.empty((1, 0, N_DOF)),
     )  # fmt: skip
     return out[0], State(q=q[0], v=v[0], w=w[0])
@@ -455,3 +459,31 @@ def test_the_sensor_noise_has_its_density_in_the_passband() -> None:
     f, psd = signal.welch(y[:, 0], fs=500.0, nperseg=4096)
     assert np.mean(psd[(f > 5) & (f < 50)]) == pytest.approx(1e-6, rel=0.1)  # (m/s^2)^2 / Hz, one-sided
     assert np.mean(psd[f > 200]) < 0.05 * 1e-6  # the anti-alias response at 0.25 fs shapes it
+
+
+def test_the_kernels_six_channels_are_both_frames_through_their_own_sensor_chains() -> None:
+    """Channels 4-6: the trailing frame at the same named corners, through bogie 2's own parts
+    (cross-axis, skew) and its own lateral acceleration, the same chain of filters."""
+    rng = np.random.default_rng(11)
+    model = build_model(PARAMS, "full", (parse_fault("type_a:rear_outer:0.0@2:leading-left"),))
+    state = _random_state(model, rng)
+    track = generate_track(PARAMS, "erri-high", 200.0, rng)
+    n, speed = 800, 25.0
+    lateral, lateral_2 = 0.5 * rng.standard_normal(n + 2), 0.5 * rng.standard_normal(n + 2)
+    p = model.params
+    part_2 = sensors.other_part(p.sensor, np.random.default_rng(5))
+    geometry = BogieGeometry(corners=(Corner.TRAILING_RIGHT, Corner.LEADING_LEFT, Corner.LEADING_RIGHT))
+    out, _ = _kernel_run(model, state, track, speed, n, p.sensor, geometry, lateral, 4, part_2, lateral_2)
+    alone, _ = _kernel_run(model, state, track, speed, n, p.sensor, geometry, lateral, 4)
+    np.testing.assert_array_equal(out[:, :3], alone)  # bogie 1's channels as a one-bogie run's
+
+    xy = geometry.positions_m()
+    vertical = np.empty((n, 3))
+    ref, front = state, p.axle_offsets_m[-1] + 5.0123
+    for step in range(n):
+        rail_z, rail_v = _rails_at(track, front, p.axle_offsets_m, speed)
+        ref, accel = step_reference(model, ref, rail_z, rail_v, DT_S)
+        vertical[step] = accel[6] + xy[:, 0] * accel[7] + xy[:, 1] * accel[8] + p.gravity_mps2
+        front += DT_S * speed
+    chain = sensors.SensorChain(part_2, 1.0 / DT_S, 1.0 / (4 * DT_S), 4, p.gravity_mps2)
+    np.testing.assert_allclose(out[:, 3:], chain.process(vertical, lateral_2[:n]), rtol=1e-9, atol=1e-7)

@@ -8,6 +8,7 @@ so the sink's publish() merely wakes the publisher.
 
 from __future__ import annotations
 
+from collections.abc import Set as AbstractSet
 from pathlib import Path
 
 from bogiemon.daemon.delivery.can_alarms import CanAlarmSink, Heartbeat, load_alarm_codecs
@@ -62,16 +63,17 @@ class Delivery(EventSink):
         self._restart_can(config)  # first: a bad DBC stops the start before any thread runs
         self._restart_publisher(config)
 
-    def apply(self, config: BogiemonConfig) -> None:
-        """On reload: restart the parts whose settings changed; the others keep running.
+    def apply(self, config: BogiemonConfig, changed: AbstractSet[str]) -> None:
+        """On reload: restart the parts whose sections changed (`changed`, daemon/startup.py
+        Snapshot.changed: their settings or a file they name); the others keep running.
 
         A [can_alarms] DBC that cannot be used is logged and the running CAN alarms are kept.
         """
-        old, self._config = self._config, config
-        assert old is not None, "start() first"
-        if (old.mqtt, old.wagon) != (config.mqtt, config.wagon):
+        assert self._config is not None, "start() first"
+        self._config = config
+        if changed & {"mqtt", "wagon"}:
             self._restart_publisher(config)
-        if old.can_alarms != config.can_alarms:
+        if "can_alarms" in changed:
             try:
                 self._restart_can(config)
             except DbcError as exc:

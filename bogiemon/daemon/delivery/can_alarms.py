@@ -11,12 +11,12 @@ logged once; alarm frames wait for it (the newest ALARM_QUEUE_N), heartbeats are
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,8 +24,7 @@ import can
 import cantools
 import numpy as np
 
-from bogiemon.judgement.events import INDICATOR_FIELDS
-from bogiemon.judgement.events import Event, EventKind, Severity
+from bogiemon.judgement.events import INDICATOR_FIELDS, ConfirmedDetails, DecisionDetails, Event, EventKind, Severity, Trigger
 from bogiemon.daemon.logs import get_logger
 from bogiemon.daemon.sinks import EventSink
 from bogiemon.detection.kinematics import Corner
@@ -38,7 +37,7 @@ DIAGNOSIS_MESSAGE, COVERAGE_MESSAGE = "BogieDiagnosis", "BogieCoverage"
 # The events that make a frame.
 ALARM_KINDS = {EventKind.CONFIRMED: 1, EventKind.CLEARED: 2, EventKind.NOT_JUDGED: 3, EventKind.JUDGED_AGAIN: 4}
 CORNER_BITS = {Corner.LEADING_LEFT: 1, Corner.LEADING_RIGHT: 2, Corner.TRAILING_LEFT: 4, Corner.TRAILING_RIGHT: 8}
-TRIGGER_CODES = {"windows": 1, "trend": 2}  # 0: none
+TRIGGER_CODES = {Trigger.WINDOWS: 1, Trigger.TREND: 2}  # 0: none
 SEVERITY_CODES = {Severity.INFO: 0, Severity.WARNING: 1, Severity.ALARM: 2}
 INDICATOR_CODES = {name: i + 1 for i, name in enumerate(INDICATOR_FIELDS)}  # 0: none
 MODE_CODES = {"normal": 0, "suspected": 1, "confirmed": 2}
@@ -95,14 +94,13 @@ def load_alarm_codecs(dbc_path: str | Path | None = None) -> AlarmCodecs:
 
 def worst_indicator(event: Event) -> tuple[str | None, float]:
     """The indicator of the event furthest beyond its alarm level (relative to it), and its value."""
-    limits = event.details.get("thresholds", {}) if isinstance(event.details, dict) else {}
+    limits = event.details.thresholds if isinstance(event.details, DecisionDetails) else {}
     best: tuple[float, str, float] | None = None
     for name, value in event.indicators.items():
         if value != value:  # NaN never wins
             continue
-        limit = limits.get(name, {})
-        alarm, center = float(limit.get("alarm", 0.0) or 0.0), float(limit.get("center", 0.0) or 0.0)
-        ratio = abs(value - center) / alarm if alarm > 0 else abs(value)
+        limit = limits.get(name)
+        ratio = abs(value - limit.center) / limit.alarm if limit is not None else abs(value)
         if best is None or ratio > best[0]:
             best = (ratio, name, float(value))
     return (None, 0.0) if best is None else (best[1], best[2])
@@ -129,18 +127,17 @@ def _event_ref(event: Event) -> int:
 
 def diagnosis_payload(codecs: AlarmCodecs, event: Event, alarm_counter: int) -> bytes:
     """The BogieDiagnosis of a CONFIRMED: the corners it names (a bit each), its trigger and confidence."""
-    details = event.details if isinstance(event.details, dict) else {}
-    found = details.get("diagnosis")
-    diagnosis: dict[str, Any] = found if isinstance(found, dict) else {}
+    details = event.details if isinstance(event.details, ConfirmedDetails) else None
+    diagnosis = details.diagnosis if details is not None else None
     corners = 0
-    for name in diagnosis.get("corners", []) if isinstance(diagnosis.get("corners"), list) else []:
-        corners |= next((bit for c, bit in CORNER_BITS.items() if c.value == name), 0)
-    confidence = diagnosis.get("corner_confidence", 0.0)
-    confidence = float(confidence) if isinstance(confidence, int | float) and confidence == confidence else 0.0
+    for corner in diagnosis.corners if diagnosis is not None else ():
+        corners |= CORNER_BITS[corner]
+    confidence = diagnosis.corner_confidence if diagnosis is not None and math.isfinite(diagnosis.corner_confidence) else 0.0
+    trigger = details.trigger if details is not None else None
     raw = {
         "Counter": alarm_counter % 256,
         "Corners": corners,
-        "Trigger": TRIGGER_CODES.get(str(details.get("trigger")), 0),
+        "Trigger": 0 if trigger is None else TRIGGER_CODES[trigger],
         "Confidence": min(100, max(0, int(100 * confidence))),  # floored: never rounded up to a certainty
         "EventRef": _event_ref(event),
     }

@@ -12,8 +12,8 @@ factory (transport.py): paho by default, memory_transport in tests.
 Connection failures are retried with a doubling, jittered backoff; each change of the link's
 state (connected, lost, failing for a new reason) is logged once, not each attempt.
 
-What the store holds is read back as it was written (any float, any nesting): an event that does
-not fit bogiemon.event/1 (a reader would refuse it) is not sent, but logged once and counted, and
+What the store holds is read back as it was written (any float, any string): an event that does
+not fit bogiemon.event/2 (a reader would refuse it) is not sent, but logged once and counted, and
 it stays in the store and pending; the rest of the outbox goes on.
 """
 
@@ -40,6 +40,7 @@ from bogiemon.daemon.delivery.connection import (
 )
 from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.messages import (
+    EVENT_SCHEMA,
     STATE_OFFLINE,
     STATE_ONLINE,
     SchemaError,
@@ -384,7 +385,7 @@ class OutboxPublisher:
         if isinstance(item, PendingEvent):
             self.counters.unsendable_events += 1
             self._log.error(
-                "mqtt event not sent: it does not fit bogiemon.event/1; it stays in the event store",
+                f"mqtt event not sent: it does not fit {EVENT_SCHEMA}; it stays in the event store",
                 seq=item.seq, event_id=item.event.event_id, kind=item.event.kind.value, reason=str(problem),
             )  # fmt: skip
         else:

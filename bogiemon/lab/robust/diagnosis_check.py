@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bogiemon.daemon.config import BogiemonConfig
-from bogiemon.judgement.diagnosis import SIGN_BANDS, softer_signs
+from bogiemon.judgement.diagnosis import SIGN_BANDS, Diagnosis, softer_signs
 from bogiemon.judgement.models import UNKNOWN, coupling_features
 from bogiemon.detection import BogieGeometry, Corner, IndicatorStream, ProcessingSettings, WindowIndicators
 from bogiemon.detection.features import COUPLING_FEATURES, COUPLING_NAMES, PITCH
@@ -77,13 +77,13 @@ class Tally:
     outcomes: dict[tuple[str, float], dict[str, Counter[str]]] = field(default_factory=lambda: defaultdict(lambda: defaultdict(Counter)))
     runs: Counter[tuple[str, float]] = field(default_factory=Counter)
 
-    def add(self, spec: RunSpec, diagnosis: dict[str, object] | None, confirmed: bool) -> None:
+    def add(self, spec: RunSpec, diagnosis: Diagnosis | None, confirmed: bool) -> None:
         assert spec.corner is not None
         cell = (spec.key, spec.severity)
         self.runs[cell] += 1
         if not confirmed:
             return
-        corner = (diagnosis or {}).get("corner", UNKNOWN)
+        corner = diagnosis.corner if diagnosis is not None else UNKNOWN
         outcome = "unknown" if corner == UNKNOWN else "right" if corner == spec.corner.value else "wrong"
         self.outcomes[cell][spec.corner.value][outcome] += 1
 
@@ -104,13 +104,13 @@ def tally_runs(data: EvaluationData, config: BogiemonConfig) -> tuple[Tally, Tal
     lines = []
     for r in judged.runs:
         if r.run.role == "fault":
-            runs.add(r.run, dict(r.diagnosis) if r.diagnosis else None, r.confirmed_s is not None)
+            runs.add(r.run, r.diagnosis, r.confirmed_s is not None)
             if r.confirmed_s is not None and r.run.corner is not None:
-                d = r.diagnosis or {}
+                d = r.diagnosis
                 lines.append(f"  {case_label(r.run.key, r.run.severity):24} {r.run.corner.value:14} {'reversed' if r.reversed else 'forward ':8} "
-                             f"{r.trigger or '':7} -> {d.get('corner', UNKNOWN):14} {d.get('best_match', '')}")  # fmt: skip
+                             f"{r.trigger or '':7} -> {d.corner if d else UNKNOWN:14} {d.best_match if d else ''}")  # fmt: skip
     for s in judged.sequences:
-        sequences.add(s.first, dict(s.diagnosis) if s.diagnosis else None, s.confirmed_after_s is not None)
+        sequences.add(s.first, s.diagnosis, s.confirmed_after_s is not None)
     return runs, sequences, lines
 
 

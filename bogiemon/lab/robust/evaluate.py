@@ -17,7 +17,6 @@ from typing import Any
 
 from bogiemon.daemon.calibrate import calibrate_windows
 from bogiemon.daemon.config import BogiemonConfig
-from bogiemon.judgement.models import shipped_models
 from bogiemon.detection import WindowIndicators
 from bogiemon.detection.channel_stats import ChannelStats
 from bogiemon.lab.modelfit import TrainingRun, fit_models, write_models
@@ -119,9 +118,7 @@ def fit_and_write_models(data: EvaluationData, config: BogiemonConfig, directory
         training_runs(data), config.bogie_geometry(), config.health_settings(), config.processing_settings(),
         config.decision.confirm_k, config.decision.confirm_n, description, calibration_runs=plan.calibration_runs,
     )  # fmt: skip
-    written = write_models(fitted, directory or config_folder())
-    shipped_models.cache_clear()
-    return written
+    return write_models(fitted, directory or config_folder())  # read anew by shipped_models: the files changed
 
 
 class EvaluateError(ValueError):

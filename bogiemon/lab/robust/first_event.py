@@ -24,12 +24,12 @@ import dataclasses
 import statistics
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from bogiemon.daemon.config import BogiemonConfig
 from bogiemon.detection import PAPER_LAYOUT, Corner
+from bogiemon.judgement.events import Event, EventKind, SensorFaultDetails
 from bogiemon.lab.robust.fleet import EXPECTED_PROBLEM, EvaluationData, EvaluationPlan, fault_cells, simulate_plan
 from bogiemon.lab.robust.judge import Commissioned, DaemonMethod, JudgedRun, sequences
 
@@ -73,24 +73,24 @@ def _commission(method: DaemonMethod, data: EvaluationData, wagon: int, through:
     return dataclasses.replace(done, settings=dataclasses.replace(done.settings, health=health))
 
 
-def after_onset(onset_s: float, durations_s: Sequence[float], judged: Sequence[JudgedRun]) -> list[tuple[float, str, Mapping[str, Any]]]:
-    """(running time since the onset, kind, details) of each event after it, of a sequence of runs
+def after_onset(onset_s: float, durations_s: Sequence[float], judged: Sequence[JudgedRun]) -> list[tuple[float, Event]]:
+    """(running time since the onset, the event) of each event after it, of a sequence of runs
     judged one after the other (each event's time is from its own run's start)."""
     offset_s, out = 0.0, []
     for duration_s, j in zip(durations_s, judged, strict=True):
-        out += [(offset_s + e.time_s - onset_s, e.kind, e.details) for e in j.events if offset_s + e.time_s > onset_s]
+        out += [(offset_s + e.time_s - onset_s, e) for e in j.events if offset_s + e.time_s > onset_s]
         offset_s += duration_s
     return out
 
 
-def tally_trend(t: Tally, events: Sequence[tuple[float, str, Mapping[str, Any]]]) -> None:
+def tally_trend(t: Tally, events: Sequence[tuple[float, Event]]) -> None:
     """Count one fault's sequence: which event came first after the onset, and when the CONFIRMED."""
     t.sequences += 1
-    first = events[0] if events else None
-    t.sensor_first += first is not None and first[1] == "SENSOR_FAULT"
-    t.sensor_alone_first += first is not None and first[1] == "SENSOR_FAULT" and not first[2].get("suspension")
-    t.sensor_any += any(kind == "SENSOR_FAULT" for _, kind, _ in events)
-    confirmed = next((s for s, kind, _ in events if kind == "CONFIRMED"), None)
+    first = events[0][1] if events else None
+    t.sensor_first += first is not None and first.kind is EventKind.SENSOR_FAULT
+    t.sensor_alone_first += isinstance(first, Event) and isinstance(first.details, SensorFaultDetails) and first.details.suspension is None
+    t.sensor_any += any(e.kind is EventKind.SENSOR_FAULT for _, e in events)
+    confirmed = next((s for s, e in events if e.kind is EventKind.CONFIRMED), None)
     if confirmed is not None:
         t.confirmed += 1
         t.confirm_s.append(confirmed)
@@ -110,9 +110,9 @@ def measure(data: EvaluationData, through: bool) -> Tally:
                 problem, channels = EXPECTED_PROBLEM[group[0].run.damage or ""]
                 kinds = [e for j in judged for e in j.events]
                 t.sensor_runs += 1
-                named = {ch for e in kinds if e.kind == "SENSOR_FAULT" for ch, ps in e.details.get("problems", {}).items() if problem in ps}
+                named = {ch for e in kinds if isinstance(e.details, SensorFaultDetails) for ch, ps in e.details.problems.items() if problem in ps}
                 t.sensor_named += set(channels) <= named
-                t.sensor_suspension += any(e.kind in ("SUSPECTED", "CONFIRMED") for e in kinds)
+                t.sensor_suspension += any(e.kind in (EventKind.SUSPECTED, EventKind.CONFIRMED) for e in kinds)
             elif role == "healthy":
                 t.healthy_runs += len(group)
                 t.healthy_events += sum(bool(j.events) for j in judged)

@@ -13,6 +13,8 @@ from typing import Any
 
 from bogiemon.daemon.calibrate import calibrate_windows, combine_loads, fragment
 from bogiemon.daemon.config import BogiemonConfig, validate_config
+from bogiemon.judgement.diagnosis import Diagnosis
+from bogiemon.judgement.events import ConfirmedDetails, Event, EventKind, SensorFaultDetails, Trigger
 from bogiemon.judgement.verdict import MonitorSettings, WindowJudge
 from bogiemon.judgement.vocabulary import LoadSetting
 from bogiemon.detection import WindowIndicators
@@ -50,18 +52,20 @@ class Commissioned:
 
     def judge(self, runs: Sequence[Sequence[WindowIndicators]], true_load: str) -> list[JudgedRun]:
         """Judge consecutive runs of the wagon, the decision state carried from one to the next
-        (the windows restart at each run, as at a stop); one JudgedRun per run, times from its start."""
+        (the windows restart at each run, as at a stop); one JudgedRun per run, times (the windows'
+        and so the events') from its start."""
         settings = replace(self.settings, load=LoadSetting(true_load), load_model=None) if self.true_load else self.settings
         judge = WindowJudge(settings)  # one wagon running on: its decision state carries over
         out = []
         for windows in runs:
-            events, loads, ratios, p_full = [], [], [], []
+            events: list[Event] = []
+            loads, ratios, p_full = [], [], []
             for w in windows:
                 judged = judge.judge(w)
                 loads.append(judged.load)
                 ratios.append(None if judged.judgement is None else judged.judgement.alarm_ratio)
                 p_full.append(judged.p_full)
-                events += [Outcome(e.kind.value, w.end_s, e.details) for e in judged.events]
+                events += judged.events
             out.append(JudgedRun(tuple(events), tuple(loads), tuple(ratios), tuple(p_full)))
         return out
 
@@ -91,18 +95,8 @@ class DaemonMethod:
 
 
 @dataclass(frozen=True)
-class Outcome:
-    """One event of a judged run: its kind ("CONFIRMED", "SENSOR_FAULT", ...), the end of the
-    window that caused it (s from the run's start) and its details."""
-
-    kind: str
-    time_s: float
-    details: Mapping[str, Any]
-
-
-@dataclass(frozen=True)
 class JudgedRun:
-    events: tuple[Outcome, ...]
+    events: tuple[Event, ...]  # each at the end of the window that caused it, s from the run's start
     loads: tuple[str | None, ...]  # per window: the load state it was judged in (None: not judged)
     # Per window: the judged value as a fraction of its alarm level (>= 1: alarm); None: not judged.
     ratios: tuple[float | None, ...] = ()
@@ -118,8 +112,8 @@ class RunResult:
     reversed: bool
     confirmed_s: float | None  # the first CONFIRMED after the onset (fault runs) or anywhere (others), s from the run's start
     confirmed_before_onset: bool  # a fault run's lead-in confirmed (a false alarm)
-    diagnosis: Mapping[str, Any] | None
-    trigger: str | None  # of that CONFIRMED: "windows" or "trend"
+    diagnosis: Diagnosis | None  # of that CONFIRMED
+    trigger: Trigger | None  # of that CONFIRMED
     sensor_problems: Mapping[str, tuple[str, ...]]  # every problem any SENSOR_FAULT named, per channel
     suspension_events: int  # SUSPECTED and CONFIRMED events
     confirmed_count: int
@@ -140,8 +134,8 @@ class SequenceResult:
     fault_running_s: float  # how long the sequence ran with the fault
     confirmed_after_s: float | None  # running time from the onset to the first CONFIRMED after it
     confirmed_before_onset: bool
-    trigger: str | None
-    diagnosis: Mapping[str, Any] | None
+    trigger: Trigger | None
+    diagnosis: Diagnosis | None
     judged_after_onset: int = 0  # windows judged that end after the onset
     events_after_onset: int = 0  # events of any kind after the onset (0 with none judged: silent)
 
@@ -196,20 +190,20 @@ def judge_runs(data: EvaluationData, method: DaemonMethod, progress: Progress | 
 def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -> SequenceResult:
     onset = group[0].run.onset_s
     offset = 0.0  # running time at the start of each run, from the sequence's start
-    first_after: tuple[float, Outcome] | None = None
+    first_after: tuple[float, ConfirmedDetails] | None = None
     before = False
     judged_after = events_after = 0
     for r, j in zip(group, judged, strict=True):
         judged_after += sum(ld is not None and offset + w.end_s > onset for ld, w in zip(j.loads, r.windows, strict=True))
         events_after += sum(offset + e.time_s > onset for e in j.events)
         for e in j.events:
-            if e.kind != "CONFIRMED":
+            if not isinstance(e.details, ConfirmedDetails):
                 continue
             t = offset + e.time_s
             if t <= onset:
                 before = True
             elif first_after is None:
-                first_after = (t - onset, e)
+                first_after = (t - onset, e.details)
         offset += r.run.duration_s
     return SequenceResult(
         first=group[0].run,
@@ -217,8 +211,8 @@ def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -
         fault_running_s=offset - onset,
         confirmed_after_s=first_after[0] if first_after else None,
         confirmed_before_onset=before,
-        trigger=first_after[1].details.get("trigger") if first_after else None,
-        diagnosis=first_after[1].details.get("diagnosis") if first_after else None,
+        trigger=first_after[1].trigger if first_after else None,
+        diagnosis=first_after[1].diagnosis if first_after else None,
         judged_after_onset=judged_after,
         events_after_onset=events_after,
     )
@@ -226,25 +220,25 @@ def _sequence_result(group: Sequence[RunWindows], judged: Sequence[JudgedRun]) -
 
 def _result(r: RunWindows, judged: JudgedRun) -> RunResult:
     onset = r.run.onset_s if r.run.key != HEALTHY else 0.0
-    confirmed = [e for e in judged.events if e.kind == "CONFIRMED"]
-    after = [e for e in confirmed if e.time_s > onset]
+    confirmed = [(e.time_s, e.details) for e in judged.events if isinstance(e.details, ConfirmedDetails)]
+    after = [(t, d) for t, d in confirmed if t > onset]
     problems: dict[str, set[str]] = {}
     for e in judged.events:
-        if e.kind == "SENSOR_FAULT":
-            for channel, found in e.details.get("problems", {}).items():
+        if isinstance(e.details, SensorFaultDetails):
+            for channel, found in e.details.problems.items():
                 problems.setdefault(channel, set()).update(found)
     return RunResult(
         run=r.run,
         track=r.conditions.track,
         reversed=r.conditions.reversed,
-        confirmed_s=after[0].time_s if after else None,
-        confirmed_before_onset=any(e.time_s <= onset for e in confirmed) if r.run.key != HEALTHY else False,
-        diagnosis=after[0].details.get("diagnosis") if after else None,
-        trigger=after[0].details.get("trigger") if after else None,
+        confirmed_s=after[0][0] if after else None,
+        confirmed_before_onset=any(t <= onset for t, _ in confirmed) if r.run.key != HEALTHY else False,
+        diagnosis=after[0][1].diagnosis if after else None,
+        trigger=after[0][1].trigger if after else None,
         sensor_problems={c: tuple(sorted(p)) for c, p in problems.items()},
-        suspension_events=sum(e.kind in ("SUSPECTED", "CONFIRMED") for e in judged.events),
+        suspension_events=sum(e.kind in (EventKind.SUSPECTED, EventKind.CONFIRMED) for e in judged.events),
         confirmed_count=len(confirmed),
-        suspected_count=sum(e.kind == "SUSPECTED" for e in judged.events),
+        suspected_count=sum(e.kind is EventKind.SUSPECTED for e in judged.events),
         loads=judged.loads,
         ratios=judged.ratios,
         p_full=judged.p_full,

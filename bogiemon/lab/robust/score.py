@@ -31,10 +31,10 @@ from __future__ import annotations
 import math
 import statistics
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
+from bogiemon.judgement.diagnosis import Diagnosis
 from bogiemon.lab.robust.fleet import DETECTION_HORIZON_S, EXPECTED_PROBLEM, EvaluationData
 from bogiemon.lab.robust.judge import RunResult, SequenceResult
 
@@ -201,13 +201,9 @@ def _silent(r: RunResult) -> bool:
     return not judged and r.suspension_events == 0 and not r.sensor_problems
 
 
-def named_corners(diagnosis: Mapping[str, Any] | None) -> tuple[str, ...]:
-    """The corners a diagnosis names: its pair, one corner (events written before the pair), or none."""
-    d = diagnosis or {}
-    if "corners" in d:
-        return tuple(d["corners"])
-    corner = d.get("corner", "unknown")
-    return () if corner == "unknown" else (corner,)
+def named_corners(diagnosis: Diagnosis | None) -> tuple[str, ...]:
+    """The corners a diagnosis names (none without one)."""
+    return () if diagnosis is None else tuple(c.value for c in diagnosis.corners)
 
 
 def _sequence_cells(results: Sequence[SequenceResult]) -> list[SequenceCell]:
@@ -228,7 +224,7 @@ def _sequence_cells(results: Sequence[SequenceResult]) -> list[SequenceCell]:
                 by_trend=sum(r.trigger == "trend" for r in found),
                 times_s=tuple(float(r.confirmed_after_s) for r in found),  # type: ignore[arg-type]
                 corner_right=sum(c in named_corners(r.diagnosis) for r, c in zip(found, corner, strict=True)),
-                kind_right=sum((r.diagnosis or {}).get("kind") == r.first.kind for r in found),
+                kind_right=sum(r.diagnosis is not None and r.diagnosis.kind == r.first.kind for r in found),
                 silent=sum(r.judged_after_onset == 0 and r.events_after_onset == 0 for r in seqs),
             )
         )
@@ -280,7 +276,7 @@ def score_method(
             c = by_corner.setdefault(r.run.corner.value if r.run.corner else "-", [0, 0])
             c[0] += 1
             c[1] += _detected(r, horizon_s)
-        diagnoses = [(r, r.diagnosis or {}) for r in detected]
+        diagnoses = [(r, r.diagnosis) for r in detected]
         ratios = [x for r in runs for x in _faulty_ratios(r, window_s)]
         cell_scores.append(
             CellScore(
@@ -291,7 +287,7 @@ def score_method(
                 times_s=tuple(float(r.confirmed_s - r.run.onset_s) for r in detected),  # type: ignore[operator]
                 by_corner={k: (v[0], v[1]) for k, v in sorted(by_corner.items())},
                 corner_right=sum((r.run.corner.value if r.run.corner else None) in named_corners(d) for r, d in diagnoses),
-                kind_right=sum(d.get("kind") == r.run.kind for r, d in diagnoses),
+                kind_right=sum(d is not None and d.kind == r.run.kind for r, d in diagnoses),
                 unknown_corner=sum(not named_corners(d) for _, d in diagnoses),
                 ratios=tuple(ratios),
                 silent=sum(_silent(r) for r in runs),

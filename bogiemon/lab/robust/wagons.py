@@ -12,6 +12,10 @@ The plan's wagon MODEL ("a", simulator/vehicle.py; or "b", simulator/model_b, bu
 takes the same draws on its own parameter set (WAGON_KEYS says which key each spread scales), so
 wagon i of a fleet differs from the nominal alike on both models; on model B the sensor errors go
 into its own [sensor] section (gain, bias, noise density) instead of model A's SensorModel.
+BOGIE 2's three sensors (runs that record both bogies, lab/sister) are other parts, drawn alike
+from a stream of the wagon's seed of their own (so every draw above stays what it was); on model B
+also their cross-axis sensitivity and sample instants (simulator/model_b/sensors.py other_part's
+tolerances), so that each physical bogie keeps its parts whichever way the wagon runs.
 """
 
 from __future__ import annotations
@@ -59,6 +63,9 @@ class Wagon:
     sensor: SensorModel
     spread: dict[str, float]  # the drawn wagon-level factors, for the report
     model: str = "a"  # the simulator's wagon model (Scenario.model)
+    # Bogie 2's sensors (module docstring): model A's SensorModel; model B's [sensor] values of them.
+    sensor_bogie_2: SensorModel = field(default_factory=SensorModel)
+    part_bogie_2: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def tolerance_fault(self, physical: Corner, bogie: str, config_corner: Corner, load: str) -> Fault:
         """The healthy corner with its tolerances, as the simulator's custom fault at `physical`.
@@ -78,6 +85,21 @@ class Wagon:
             return nominal_corner_values(model_b_parameters.wagon_parameters(self.parameters, load))
         cases = self.parameters["fault_cases"]["healthy"][load]
         return float(cases["Kz"]), float(cases["Fs"])
+
+    def bogie_sensors(self, leading: int) -> tuple[SensorModel, SensorModel | None, dict[str, Any]]:
+        """(sensor, sensor_bogie_2, parameters) of a two-bogie scenario whose leading bogie in the
+        direction of travel is this wagon's bogie `leading` (1 or 2): each physical bogie reads
+        through its own parts whichever way the wagon runs."""
+        if self.model == "a":
+            first, second = (self.sensor, self.sensor_bogie_2) if leading == 1 else (self.sensor_bogie_2, self.sensor)
+            return first, second, self.parameters
+        params = copy.deepcopy(self.parameters)
+        own = params["vehicle"]["sensor"]
+        part_1 = {key: own[key] for key in self.part_bogie_2}
+        first_part, second_part = (part_1, self.part_bogie_2) if leading == 1 else (self.part_bogie_2, part_1)
+        own.update(copy.deepcopy(first_part))
+        params["vehicle"]["sensor_bogie_2"] = copy.deepcopy(second_part)
+        return SensorModel(), None, params
 
     @property
     def scenario_sensor(self) -> SensorModel:
@@ -187,4 +209,23 @@ def make_wagon(name: str, seed: int, model: str = "a") -> Wagon:
         # over +/-16 g there too: model B's shipped converter).
         band_hz = float(own["antialias_fraction_of_fs"]) * NOMINAL_FS_HZ
         own["noise_density_mps2_per_sqrt_hz"] = sensor.noise_mps2 / math.sqrt(band_hz)
-    return Wagon(name, seed, params, kz, fs, sensor, spread, model)
+    other = np.random.default_rng([seed, 2])  # bogie 2's parts: a stream apart
+    sensor_2 = SensorModel(
+        noise_mps2=float(other.uniform(*SENSOR_NOISE_RANGE_MPS2)),
+        bias_mps2=tuple(float(b) for b in other.uniform(-SENSOR_BIAS_MPS2, SENSOR_BIAS_MPS2, 3)),  # type: ignore[arg-type]
+        quantum_mps2=SENSOR_QUANTUM_MPS2,
+        gain=tuple(float(1.0 + other.uniform(-SENSOR_GAIN_SPREAD, SENSOR_GAIN_SPREAD)) for _ in range(3)),  # type: ignore[arg-type]
+    )
+    part_2: dict[str, Any] = {}
+    if model == "b":
+        from bogiemon.simulator.model_b import sensors as model_b_sensors  # model B's part tolerances
+
+        skew = other.uniform(0.0, model_b_sensors.OTHER_PART_SKEW_S, 3)
+        part_2 = {
+            "gain": list(sensor_2.gain),
+            "bias_mps2": list(sensor_2.bias_mps2),
+            "noise_density_mps2_per_sqrt_hz": sensor_2.noise_mps2 / math.sqrt(band_hz),
+            "cross_axis": [float(c) for c in other.uniform(-model_b_sensors.OTHER_PART_CROSS_AXIS, model_b_sensors.OTHER_PART_CROSS_AXIS, 3)],
+            "skew_s": [0.0, float(skew[1]), float(skew[2])],
+        }
+    return Wagon(name, seed, params, kz, fs, sensor, spread, model, sensor_2, part_2)

@@ -202,9 +202,8 @@ class WagonModel:
 
     def bowl_rows(self) -> FloatArray:
         """(2, 25): each centre bowl's compression, frame centre up minus carbody up at the bowl."""
-        a = self.params.half_bogie_distance_m
         rows = np.zeros((2, N_DOF))
-        for bogie, x in enumerate((a, -a)):
+        for bogie, x in enumerate(self.params.bogie_centres_x_m):
             rows[bogie, FRAME[bogie]] = 1.0
             rows[bogie, 0] = -1.0
             rows[bogie, 1] = -x
@@ -222,9 +221,9 @@ class WagonModel:
     def bearer_rows(self) -> FloatArray:
         """(4, 25): each side bearer's closure (bogie 0 left, right, bogie 1 ...), before the clearance."""
         p = self.params
-        a, y_sb = p.half_bogie_distance_m, p.half_bearer_spacing_m
+        y_sb = p.half_bearer_spacing_m
         rows = np.zeros((4, N_DOF))
-        for bogie, x in enumerate((a, -a)):
+        for bogie, x in enumerate(p.bogie_centres_x_m):
             for side, y in enumerate((y_sb, -y_sb)):
                 r = rows[2 * bogie + side]
                 r[FRAME[bogie]] = 1.0

@@ -30,9 +30,9 @@ from bogiemon.simulator.model_b.sensors import DELAY_LINE
     V_K_H, V_C_H, V_K_T, V_C_T,
     V_K_BOWL, V_C_BOWL, V_MU_R_BOWL, V_DELTA_BOWL, V_RHO_BOWL, V_VS_BOWL,
     V_HALF_SB, V_GAP_SB, V_K_SB, V_C_SB,
-    V_GRAVITY, V_DS, V_DT,
+    V_GRAVITY, V_DS, V_DT, V_CG_OFFSET,
     N_VEH,
-) = range(31)  # fmt: skip
+) = range(32)  # fmt: skip
 _MASK = DELAY_LINE - 1
 
 
@@ -52,6 +52,7 @@ def pack_vehicle(p: WagonParameters, ds_m: float, dt_s: float) -> np.ndarray:
     veh[V_HALF_SB], veh[V_GAP_SB] = p.half_bearer_spacing_m, p.bearer_clearance_m
     veh[V_K_SB], veh[V_C_SB] = p.bearer_stiffness_n_per_m, p.bearer_damping_n_s_per_m
     veh[V_GRAVITY], veh[V_DS], veh[V_DT] = p.gravity_mps2, ds_m, dt_s
+    veh[V_CG_OFFSET] = p.carbody_centre_offset_m
     return veh
 
 
@@ -84,22 +85,24 @@ def advance(
     n_speed: np.ndarray,  # (B,) points used in each profile
     rail_left: np.ndarray,  # (B, N) rail irregularity every ds (m)
     rail_right: np.ndarray,  # (B, N)
-    lateral: np.ndarray,  # (B, L) lateral acceleration at the output rate (m/s^2)
+    lateral: np.ndarray,  # (B, C / 3, L) each recorded frame's lateral acceleration at the output rate (m/s^2)
     lateral_t0: np.ndarray,  # (B,) time of its first sample (s)
     lateral_fs: float,  # its sample rate (Hz)
-    sensor_xy: np.ndarray,  # (B, 3, 2) sensor positions on the leading frame (m)
-    cross: np.ndarray,  # (B, 3) cross-axis sensitivity per channel
-    skew: np.ndarray,  # (B, 3) each channel's delay in integration steps (< DELAY_LINE - 1)
+    sensor_xy: np.ndarray,  # (B, 3, 2) sensor positions on each frame (m), the same named corners on both
+    cross: np.ndarray,  # (B, C) cross-axis sensitivity per channel
+    skew: np.ndarray,  # (B, C) each channel's delay in integration steps (< DELAY_LINE - 1)
     sos: np.ndarray,  # (B, n_sections, 6) resonance and anti-alias sections at the step rate
-    zi: np.ndarray,  # (B, n_sections, 2, 3) their state (transposed direct form II)
-    line: np.ndarray,  # (B, 3, DELAY_LINE) the channels' delay lines
+    zi: np.ndarray,  # (B, n_sections, 2, C) their state (transposed direct form II)
+    line: np.ndarray,  # (B, C, DELAY_LINE) the channels' delay lines
     line_pos: np.ndarray,  # (B,) next write position in them
     factor: int,  # keep every factor-th filtered sample
-    out: np.ndarray,  # (B, S, 3) the sensors' output at the kept samples (m/s^2)
+    out: np.ndarray,  # (B, S, C) the sensors' output at the kept samples (m/s^2): C = 3, the leading
+    # frame's (a1..a3), or 6, then the trailing frame's (b1..b3)
     q_out: np.ndarray,  # (B, S or 0, 25) positions at the kept samples (when its second axis is not empty)
 ) -> None:
     n_batch = q.shape[0]
     n_sections = sos.shape[1]
+    n_channels = out.shape[2]
     record_q = q_out.shape[1] > 0
     for b in numba.prange(n_batch):
         p = veh[b]
@@ -113,7 +116,9 @@ def advance(
         g, dt = p[V_GRAVITY], p[V_DT]
         inv_ds = 1.0 / p[V_DS]
         n_rail = rail_left.shape[1]
-        n_lat = lateral.shape[1]
+        n_lat = lateral.shape[2]
+        # The bogie centres from the carbody's centre of mass (off centre when its ends are loaded unequally).
+        x_lead, x_trail = a - p[V_CG_OFFSET], -a - p[V_CG_OFFSET]
         offsets = np.array([0.0, 2.0 * half_l, 2.0 * a, 2.0 * a + 2.0 * half_l])
         mass = np.empty(N_DOF)
         mass[0], mass[1], mass[2] = m_c, i_cy, i_cx
@@ -194,7 +199,7 @@ def advance(
                     gen[iz + 1] += y * f
             for bogie in range(2):
                 base = 3 + 3 * bogie
-                x_c = a if bogie == 0 else -a
+                x_c = x_lead if bogie == 0 else x_trail
                 zf, tf, pf = qb[base], qb[base + 1], qb[base + 2]
                 wz, wtf, wpf = vb[base], vb[base + 1], vb[base + 2]
                 # Primary corners: two nests, the Lenoir friction on the rear nest's load, viscous.
@@ -268,7 +273,7 @@ def advance(
                     gen[2] += y * f
             for j in range(N_DOF):
                 acc[j] = gen[j] * inv_mass[j]
-            # Sensors on the leading frame.
+            # Sensors on the leading frame, then (six channels) on the trailing one.
             keep = step % factor == 0
             xl = (t - lat_t0) * lateral_fs
             il = int(math.floor(xl))
@@ -277,9 +282,12 @@ def advance(
             if il > n_lat - 2:
                 il = n_lat - 2
             fl = xl - il
-            lat = lateral[b, il] + fl * (lateral[b, il + 1] - lateral[b, il])
-            for s in range(3):
-                lb[s, pos & _MASK] = acc[3] + xy[s, 0] * acc[4] + xy[s, 1] * acc[5] + g + cr[s] * lat
+            for s in range(n_channels):
+                frame = s // 3
+                base = 3 + 3 * frame
+                ch = s % 3
+                lat = lateral[b, frame, il] + fl * (lateral[b, frame, il + 1] - lateral[b, frame, il])
+                lb[s, pos & _MASK] = acc[base] + xy[ch, 0] * acc[base + 1] + xy[ch, 1] * acc[base + 2] + g + cr[s] * lat
                 i0 = int(sk[s])
                 fs_ = sk[s] - i0
                 y = (1.0 - fs_) * lb[s, (pos - i0) & _MASK] + fs_ * lb[s, (pos - i0 - 1) & _MASK]

@@ -42,8 +42,9 @@ def is_parameter_set(parameters: Any) -> bool:
 
 
 def with_ideal_sensor(parameters: dict[str, Any]) -> dict[str, Any]:
-    """A copy of a parameter set whose sensor is exact: no resonance error, noise, bias, drift,
-    cross-axis, skew or quantisation (the anti-alias filter stays: it is how the rate is reduced)."""
+    """A copy of a parameter set whose sensors are exact, bogie 2's too: no resonance error, noise,
+    bias, drift, cross-axis, skew or quantisation (the anti-alias filter stays: it is how the rate
+    is reduced)."""
     out = {"model": parameters["model"], "vehicle": {**parameters["vehicle"]}}
     sensor = dict(out["vehicle"]["sensor"])
     sensor.update(
@@ -58,6 +59,8 @@ def with_ideal_sensor(parameters: dict[str, Any]) -> dict[str, Any]:
         bits=0,
     )
     out["vehicle"]["sensor"] = sensor
+    # Bogie 2's parts (a run of two bogies) exact too, not drawn (sensors.other_part).
+    out["vehicle"]["sensor_bogie_2"] = {"gain": [1.0, 1.0, 1.0], "bias_mps2": [0.0, 0.0, 0.0], "cross_axis": [0.0, 0.0, 0.0], "skew_s": [0.0, 0.0, 0.0]}
     return out
 
 
@@ -135,6 +138,15 @@ class WagonParameters:
     bearer_stiffness_n_per_m: float
     bearer_damping_n_s_per_m: float
     sensor: SensorParameters
+    # The carbody's centre of mass this far from mid-way between the bogie centres, towards the
+    # leading bogie (a wagon whose ends are loaded unequally); its inertias are about that point.
+    carbody_centre_offset_m: float = 0.0
+
+    @property
+    def bogie_centres_x_m(self) -> tuple[float, float]:
+        """The leading and the trailing bogie centre's x from the carbody's centre of mass."""
+        a = self.half_bogie_distance_m
+        return (a - self.carbody_centre_offset_m, -a - self.carbody_centre_offset_m)
 
     @property
     def axle_offsets_m(self) -> tuple[float, float, float, float]:
@@ -287,6 +299,8 @@ def wagon_parameters(parameter_set: dict[str, Any], load: str) -> WagonParameter
             bearer_stiffness_n_per_m=float(sb["stiffness_n_per_m"]),
             bearer_damping_n_s_per_m=float(sb["damping_n_s_per_m"]),
             sensor=sensor,
+            # Not in the shipped file: the wagon's ends loaded alike.
+            carbody_centre_offset_m=float(body.get("centre_of_mass_offset_m", 0.0)),
         )
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, SimulationError):

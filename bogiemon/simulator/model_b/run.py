@@ -2,12 +2,15 @@
 
 Each run starts at rest (bodies.static_equilibrium) on a level stretch; the irregularities and
 dips fade in over FADE_M, and the run goes SETTLE_M further before the recording's time 0 (the
-pre-roll, at the profile's initial speed, at most MAX_PREROLL_S). Randomness: three children of
-numpy.random.SeedSequence(seed): the track, the sensors' noise and drift, the lateral acceleration.
+pre-roll, at the profile's initial speed, at most MAX_PREROLL_S). Randomness: children of
+numpy.random.SeedSequence(seed): the track, the sensors' noise and drift, the lateral acceleration,
+and (a run of two bogies) bogie 2's sensors (its parts, their noise and drift, its lateral
+acceleration), a child apart so that bogie 1's channels are exactly the one-bogie run's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -46,10 +49,12 @@ class _Prepared:
     healthy_model: WagonModel  # before it
     rest: State
     track: TrackProfile
-    lateral_mps2: FloatArray  # at the output rate, from the pre-roll's start
+    lateral_mps2: FloatArray  # (bogies, n) each recorded frame's, at the output rate, from the pre-roll's start
     preroll_n: int
     total_n: int
     sensor_rng: np.random.Generator
+    sensors: tuple[sensors.SensorParameters, ...]  # each recorded bogie's
+    sensor_2_rng: np.random.Generator | None  # bogie 2's noise and drift (two bogies)
 
     @property
     def onset_n(self) -> int:
@@ -70,7 +75,8 @@ def _prepare(scenario: Scenario, track: TrackProfile | None) -> _Prepared:
     if scenario.fault_onset_s == 0.0:
         healthy = model
     check_step(model.params, scenario.integration_step_s)
-    track_seed, sensor_seed, lateral_seed = np.random.SeedSequence(scenario.seed).spawn(3)
+    # spawn(4)'s first three children are spawn(3)'s: the one-bogie streams as they always were.
+    track_seed, sensor_seed, lateral_seed, bogie_2_seed = np.random.SeedSequence(scenario.seed).spawn(4)
     pre_s = preroll_s(scenario, model)
     preroll_n = int(round(pre_s * scenario.fs_hz))
     total_n = preroll_n + scenario.n_samples
@@ -89,19 +95,28 @@ def _prepare(scenario: Scenario, track: TrackProfile | None) -> _Prepared:
     elif track.length_m < length_m:
         raise ValueError(f"the given track is {track.length_m:.0f} m long, the run needs {length_m:.0f} m")
     times = (np.arange(total_n + 2) - preroll_n) / scenario.fs_hz
-    lateral = sensors.lateral_acceleration(
-        model.params.sensor, scenario.speed, times, scenario.fs_hz, np.random.default_rng(lateral_seed)
-    )
+    lateral = [sensors.lateral_acceleration(model.params.sensor, scenario.speed, times, scenario.fs_hz, np.random.default_rng(lateral_seed))]
+    parts = [model.params.sensor]
+    sensor_2_rng = None
+    if scenario.bogies == 2:
+        part_seed, noise_seed, lateral_2_seed = bogie_2_seed.spawn(3)
+        given = (scenario.parameters.get("vehicle") or {}).get("sensor_bogie_2")
+        parts.append(sensors.other_part(model.params.sensor, np.random.default_rng(part_seed), given))
+        check_step(dataclasses.replace(model.params, sensor=parts[1]), scenario.integration_step_s)
+        lateral.append(sensors.lateral_acceleration(parts[1], scenario.speed, times, scenario.fs_hz, np.random.default_rng(lateral_2_seed)))
+        sensor_2_rng = np.random.default_rng(noise_seed)
     return _Prepared(
         scenario=scenario,
         model=model,
         healthy_model=healthy,
         rest=static_equilibrium(healthy),
         track=track,
-        lateral_mps2=lateral,
+        lateral_mps2=np.array(lateral),
         preroll_n=preroll_n,
         total_n=total_n,
         sensor_rng=np.random.default_rng(sensor_seed),
+        sensors=tuple(parts),
+        sensor_2_rng=sensor_2_rng,
     )
 
 
@@ -138,8 +153,9 @@ def _derived(prep: _Prepared) -> dict[str, Any]:
 
 
 def _pad(rows: list[FloatArray]) -> FloatArray:
-    n = max(r.size for r in rows)
-    return np.array([np.pad(r, (0, n - r.size), mode="edge") for r in rows])
+    """Rows (or stacks of rows, the last axis the samples) padded with their last value to the longest."""
+    n = max(r.shape[-1] for r in rows)
+    return np.array([np.pad(r, [(0, 0)] * (r.ndim - 1) + [(0, n - r.shape[-1])], mode="edge") for r in rows])
 
 
 def run_group(
@@ -154,6 +170,7 @@ def run_group(
     fs_hz, factor = group[0].fs_hz, group[0].oversampling
     dt_s = group[0].integration_step_s
     rate_hz = fs_hz * factor
+    n_channels = 3 * group[0].bogies
 
     q = np.array([p.rest.q for p in preps])
     v = np.array([p.rest.v for p in preps])
@@ -169,20 +186,20 @@ def run_group(
     lateral = _pad([p.lateral_mps2 for p in preps])
     lateral_t0 = time_s.copy()
     sensor_xy = np.array([p.scenario.geometry.positions_m() for p in preps])
-    sens = [p.model.params.sensor for p in preps]
-    cross = np.array([s.cross_axis for s in sens], dtype=np.float64)
-    skew = np.array([sensors.skew_steps(s, dt_s) for s in sens])
-    sos = np.array([sensors.chain_sos(s, rate_hz, fs_hz) for s in sens])
+    cross = np.array([[c for part in p.sensors for c in part.cross_axis] for p in preps], dtype=np.float64)
+    skew = np.array([np.concatenate([sensors.skew_steps(part, dt_s) for part in p.sensors]) for p in preps])
+    # Bogie 2's parts are of bogie 1's type: one chain of filters per scenario.
+    sos = np.array([sensors.chain_sos(p.model.params.sensor, rate_hz, fs_hz) for p in preps])
     g = np.array([p.model.params.gravity_mps2 for p in preps])
     # The chain starts in steady state for the wagon at rest: every channel reads +g.
     zi = np.ascontiguousarray(
-        np.array([signal.sosfilt_zi(sos[b])[:, :, None] * np.full(3, g[b])[None, None, :] for b in range(n_batch)])
+        np.array([signal.sosfilt_zi(sos[b])[:, :, None] * np.full(n_channels, g[b])[None, None, :] for b in range(n_batch)])
     )
-    line = np.ascontiguousarray(np.broadcast_to(g[:, None, None], (n_batch, 3, sensors.DELAY_LINE))).copy()
+    line = np.ascontiguousarray(np.broadcast_to(g[:, None, None], (n_batch, n_channels, sensors.DELAY_LINE))).copy()
     line_pos = np.zeros(n_batch, dtype=np.int64)
 
     chunk_n = max(1, int(round(CHUNK_S * fs_hz)))
-    out = np.empty((n_batch, chunk_n, 3))
+    out = np.empty((n_batch, chunk_n, n_channels))
     q_out = np.empty((n_batch, 0, N_DOF))
     remaining = np.array([p.total_n for p in preps], dtype=np.int64)
     total = int(remaining.sum())
@@ -205,11 +222,15 @@ def run_group(
 
     results = []
     for b, p in enumerate(preps):
-        accel = np.concatenate(pieces[b])[p.preroll_n : p.total_n]
-        accel = sensors.convert(accel, p.model.params.sensor, fs_hz, p.sensor_rng)
+        chain = np.concatenate(pieces[b])[p.preroll_n : p.total_n]
+        accel = sensors.convert(chain[:, :3], p.model.params.sensor, fs_hz, p.sensor_rng)
         # The scenario's own sensor errors (model A's vocabulary) apply on top, so that a plan's
         # per-wagon sensor errors mean the same on both models.
         accel = p.scenario.sensor.apply(accel, p.sensor_rng)
+        if n_channels == 6:
+            assert p.sensor_2_rng is not None
+            other = sensors.convert(chain[:, 3:], p.sensors[1], fs_hz, p.sensor_2_rng)
+            accel = np.hstack([accel, p.scenario.sensor.apply(other, p.sensor_2_rng)])
         results.append(
             SimulationResult(
                 scenario=p.scenario,
@@ -249,7 +270,7 @@ def integrate(
     kernel.advance(
         q, v, w, front, time_s, np.array([n_out * record_every]), kernel.pack_vehicle(model.params, track.ds_m, step_s)[None],
         model.corner_table()[None], np.zeros((1, 1)), np.full((1, 1), speed), np.ones(1, dtype=np.int64),
-        track.left_m[None], track.right_m[None], np.zeros((1, 2)), np.zeros(1), 1.0, np.zeros((1, 3, 2)),
+        track.left_m[None], track.right_m[None], np.zeros((1, 1, 2)), np.zeros(1), 1.0, np.zeros((1, 3, 2)),
         np.zeros((1, 3)), np.zeros((1, 3)), ident, np.zeros((1, 3, 2, 3)), np.zeros((1, 3, sensors.DELAY_LINE)),
         np.zeros(1, dtype=np.int64), record_every, out, q_out,
     )  # fmt: skip

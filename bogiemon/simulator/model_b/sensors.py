@@ -20,17 +20,27 @@ by the filter: inside), clipping at the range and quantisation to the converter'
 Another sensor part (simulator/sensors.py SENSOR_VARIANTS) is the parameter set's [sensor] with
 its filter and noise entry: parameters.with_sensor_variant.
 Model A's sensor is a Chebyshev anti-alias with gain, constant bias, white noise and quantisation.
+
+BOGIE 2 (a run recording both bogies): its three sensors are other parts of the same type, so
+every per-channel error of the part is drawn anew (`other_part`), within the tolerances its
+[sensor] section states for the first three (gain +/-1 %, zero-g bias +/-25 mg, cross-axis
+sensitivity and mounting +/-3 %, sample instants 0 to 0.1 ms after its first channel), and its
+noise, drift and lateral acceleration (the other bogie's hunting) are drawn apart too. A parameter
+set's [sensor_bogie_2] table, where given, states any of those per-channel values instead.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
+from bogiemon.simulator.errors import SimulationError
 from bogiemon.simulator.model_b.parameters import MAX_ANTIALIAS_ORDER, SensorParameters
 
 if TYPE_CHECKING:
@@ -44,6 +54,35 @@ REFERENCE_SPEED_MPS = 100.0 / 3.6
 DRIFT_TIME_CONSTANTS_S = (0.3, 3.0, 30.0, 300.0)
 LATERAL_BAND_HZ = (0.5, 20.0)
 IDENTITY_SECTION = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
+# Another part of the same type (module docstring, BOGIE 2): uniform half-widths of its errors.
+OTHER_PART_GAIN = 0.01
+OTHER_PART_BIAS_MPS2 = 0.25
+OTHER_PART_CROSS_AXIS = 0.03
+OTHER_PART_SKEW_S = 1.0e-4
+# What a parameter set's [sensor_bogie_2] may state (each three values, b1..b3).
+OTHER_PART_KEYS = ("gain", "bias_mps2", "cross_axis", "skew_s", "noise_density_mps2_per_sqrt_hz", "element_noise_density_mps2_per_sqrt_hz")
+
+
+def other_part(sensor: SensorParameters, rng: np.random.Generator, given: Mapping[str, Any] | None = None) -> SensorParameters:
+    """Bogie 2's sensors: the part type of `sensor` with every per-channel error drawn anew
+    (module docstring), then whatever `given` (a [sensor_bogie_2] table) states instead."""
+    def triple(values: Any) -> tuple[float, float, float]:
+        a, b, c = (float(x) for x in values)
+        return (a, b, c)
+
+    skew = rng.uniform(0.0, OTHER_PART_SKEW_S, 3)
+    skew[0] = 0.0  # instants relative to the bus's first channel
+    drawn: dict[str, Any] = {
+        "gain": triple(1.0 + rng.uniform(-OTHER_PART_GAIN, OTHER_PART_GAIN, 3)),
+        "bias_mps2": triple(rng.uniform(-OTHER_PART_BIAS_MPS2, OTHER_PART_BIAS_MPS2, 3)),
+        "cross_axis": triple(rng.uniform(-OTHER_PART_CROSS_AXIS, OTHER_PART_CROSS_AXIS, 3)),
+        "skew_s": triple(skew),
+    }
+    for key, value in (given or {}).items():
+        if key not in OTHER_PART_KEYS:
+            raise SimulationError(f"model B [sensor_bogie_2]: unknown key '{key}': use {', '.join(OTHER_PART_KEYS)}")
+        drawn[key] = float(value) if key == "noise_density_mps2_per_sqrt_hz" else triple(value)
+    return dataclasses.replace(sensor, **drawn)
 
 
 def resonance_section(resonance_hz: float, damping_ratio: float, rate_hz: float) -> FloatArray:

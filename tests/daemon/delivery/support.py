@@ -19,9 +19,10 @@ from bogiemon.daemon.delivery.paho_transport import paho_transport
 from bogiemon.daemon.delivery.publisher import OutboxPublisher, PublisherSettings
 from bogiemon.daemon.messages import OutboxStatus, StatusMessage
 from bogiemon.daemon.delivery.transport import TransportFactory
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.judgement.events import Event, EventKind
 from bogiemon.daemon.store import EventStore
 from bogiemon.daemon.outbox import OutboxCounts
+from tests.judgement.event_examples import event_of
 
 WAGON = "318045331234"
 PREFIX = "fleet/test"
@@ -41,11 +42,7 @@ def wait_until(predicate: Callable[[], bool], deadline_s: float = DEADLINE_S) ->
 
 def make_events(n: int, start_s: float = 1.7e9) -> list[Event]:
     kinds = [KINDS[i % len(KINDS)] for i in range(n)]
-    return [
-        Event(time_s=start_s + 10 * i, kind=k, severity=DEFAULT_SEVERITY[k], config_hash="c0ffee", indicators={"i4_norm": 0.2 + i / 1000},
-              details={"load": "full", "window_end_s": start_s + 10 * i})  # fmt: skip
-        for i, k in enumerate(kinds)
-    ]
+    return [event_of(k, start_s + 10 * i, {"i4_norm": 0.2 + i / 1000}) for i, k in enumerate(kinds)]
 
 
 def commit(store: EventStore, events: list[Event], publisher: OutboxPublisher | None = None) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 from typing import Any
@@ -23,12 +24,16 @@ from bogiemon.daemon.delivery.can_alarms import (
     load_alarm_codecs,
     worst_indicator,
 )
-from bogiemon.judgement.events import DEFAULT_SEVERITY, Event, EventKind
+from bogiemon.detection.kinematics import Corner
+from bogiemon.judgement.diagnosis import Diagnosis
+from bogiemon.judgement.events import DecisionDetails, Event, EventKind, Trigger
+from bogiemon.judgement.rules import Threshold
 from bogiemon.drivers.candb import DbcError, load_layout, shipped_dbc_text
 from bogiemon.drivers.player import PlayError, open_player_bus
+from tests.judgement.event_examples import event_of
 
 DB = cantools.database.load_string(shipped_dbc_text(), database_format="dbc")
-THRESHOLDS = {"i2_norm": {"center": 0.0, "warning": 0.02, "alarm": 0.03}, "i4_norm": {"center": 0.0, "warning": 0.1, "alarm": 0.15}}
+THRESHOLDS = {"i2_norm": Threshold(warning=0.02, alarm=0.03), "i4_norm": Threshold(warning=0.1, alarm=0.15)}
 _channels = itertools.count()
 
 
@@ -44,9 +49,12 @@ def channel() -> str:
     return f"bogiemon-alarms-test-{next(_channels)}"
 
 
-def alarm_event(kind: EventKind, i4_norm: float = 0.2, i2_norm: float = 0.031) -> Event:
-    return Event(time_s=1.7e9, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="c0ffee",
-                 indicators={"i2_norm": i2_norm, "i4_norm": i4_norm}, details={"load": "full", "thresholds": THRESHOLDS})  # fmt: skip
+def alarm_event(kind: EventKind, i4_norm: float = 0.2, i2_norm: float = 0.031, **details: Any) -> Event:
+    """An event with these values fired; a suspension event's against THRESHOLDS (and these details besides)."""
+    event = event_of(kind, 1.7e9, {"i2_norm": i2_norm, "i4_norm": i4_norm})
+    if not isinstance(event.details, DecisionDetails):
+        return event
+    return dataclasses.replace(event, details=dataclasses.replace(event.details, thresholds=THRESHOLDS, **details))
 
 
 def receive(bus: can.BusABC, frame_id: int | tuple[int, ...], n: int, timeout_s: float = 10.0) -> list[can.Message]:
@@ -82,7 +90,8 @@ def test_a_dbc_without_the_alarm_frames_is_named(tmp_path: Path) -> None:
 def test_the_indicator_furthest_beyond_its_alarm_level_is_the_one_sent() -> None:
     assert worst_indicator(alarm_event(EventKind.CONFIRMED, i4_norm=0.2, i2_norm=0.031)) == ("i4_norm", 0.2)  # 1.33 > 1.03
     assert worst_indicator(alarm_event(EventKind.CONFIRMED, i4_norm=0.16, i2_norm=0.06)) == ("i2_norm", 0.06)  # 2.0 > 1.07
-    assert worst_indicator(Event(time_s=0, kind=EventKind.CLEARED, severity=DEFAULT_SEVERITY[EventKind.CLEARED], config_hash="c")) == (None, 0.0)
+    assert worst_indicator(event_of(EventKind.CLEARED, 0.0, {})) == (None, 0.0)
+    assert worst_indicator(event_of(EventKind.SENSOR_FAULT, 0.0, {"i1": -3.0})) == ("i1", -3.0)  # no limits: the largest value
 
 
 def test_encoded_payloads_decode_with_cantools_to_what_was_meant() -> None:
@@ -172,24 +181,22 @@ def test_a_bus_that_is_not_there_yet_is_retried_quietly_and_the_alarm_waits_for_
 
 def test_a_confirmed_diagnosis_names_its_diagonal_pair_a_bit_each_and_never_a_certainty() -> None:
     codecs = load_alarm_codecs()
-    event = alarm_event(EventKind.CONFIRMED)
-    assert isinstance(event.details, dict)
-    event.details["diagnosis"] = {"corner": "leading-left or trailing-right", "corners": ["leading-left", "trailing-right"],
-                                  "corner_confidence": 0.999}  # fmt: skip
-    event.details["trigger"] = "trend"
+    pair = Diagnosis((Corner.LEADING_LEFT, Corner.TRAILING_RIGHT), "unknown", 0.999, 0.0, "", 1.0, 3)
+    event = alarm_event(EventKind.CONFIRMED, diagnosis=pair, trigger=Trigger.TREND)
     decoded = decode(0x302, diagnosis_payload(codecs, event, alarm_counter=5))
     assert decoded["Counter"] == 5 and decoded["Corners"] == 1 | 8 and str(decoded["Trigger"]) == "trend"
     assert decoded["Confidence"] == 99 and decoded["EventRef"] == int(event.event_id[:6], 16)
-    unknown = alarm_event(EventKind.CONFIRMED)
-    assert isinstance(unknown.details, dict)
-    unknown.details["diagnosis"] = {"corner": "unknown", "corners": [], "corner_confidence": 0.6}
+    unknown = alarm_event(EventKind.CONFIRMED, diagnosis=Diagnosis((), "unknown", 0.6, 0.0, "", 0.0, 3))
     assert decode(0x302, diagnosis_payload(codecs, unknown, alarm_counter=6))["Corners"] == 0
+    unsaid = alarm_event(EventKind.CONFIRMED, diagnosis=None, trigger=None)  # an event of a version before the diagnosis
+    decoded = decode(0x302, diagnosis_payload(codecs, unsaid, alarm_counter=7))
+    assert (decoded["Corners"], str(decoded["Trigger"]), decoded["Confidence"]) == (0, "none", 0)
 
 
 def test_not_judged_and_judged_again_go_on_the_bus_as_alarm_frames() -> None:
     codecs = load_alarm_codecs()
     for kind, code in ((EventKind.NOT_JUDGED, "NOT_JUDGED"), (EventKind.JUDGED_AGAIN, "JUDGED_AGAIN")):
-        event = Event(time_s=1.7e9, kind=kind, severity=DEFAULT_SEVERITY[kind], config_hash="c0ffee", details={"message": "x"})
+        event = event_of(kind, 1.7e9, {})
         decoded = decode(0x300, alarm_payload(codecs, event, counter=1))
         assert str(decoded["Kind"]) == code and str(decoded["Indicator"]) == "none" and decoded["Fired"] == 0
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,7 @@ from bogiemon.daemon.config import ConfigError, parse_config
 from bogiemon.daemon.delivery import Delivery
 from bogiemon.daemon.messages import OutboxStatus, StatusMessage
 from bogiemon.daemon.monitor import Monitor
+from bogiemon.daemon.startup import Snapshot
 from bogiemon.daemon.store import EventStore
 from tests.daemon.delivery.support import WAGON
 
@@ -21,14 +23,22 @@ def test_a_reload_restarts_only_the_delivery_parts_whose_settings_changed(tmp_pa
     monitor = Monitor(config.monitor_settings(), EventStore(tmp_path), [])
     delivery = Delivery(tmp_path)
     delivery.start(config, monitor)
+    running = Snapshot.of(config)
+
+    def reload(text: str) -> None:
+        nonlocal running
+        new = Snapshot.of(parse_config(text, "t"))
+        delivery.apply(new.config, running.changed(new))
+        running = new
+
     try:
         first = delivery.publisher
         assert first is not None and first.is_alive() and delivery.can_sink is None
-        delivery.apply(parse_config(base + mqtt + "[processing]\nwindow_s = 120.0\nhop_s = 20.0\n[decision]\nmethod = \"thresholds\"\n", "t"))
+        reload(base + mqtt + "[processing]\nwindow_s = 120.0\nhop_s = 20.0\n[decision]\nmethod = \"thresholds\"\n")
         assert delivery.publisher is first  # nothing of its own changed
-        delivery.apply(parse_config(base + mqtt.replace("port = 9", "port = 10"), "t"))
+        reload(base + mqtt.replace("port = 9", "port = 10"))
         assert delivery.publisher is not first and not first.is_alive()
-        delivery.apply(parse_config(base, "t"))
+        reload(base)
         assert delivery.publisher is None
     finally:
         delivery.close()
@@ -66,10 +76,15 @@ def test_the_mqtt_unit_is_bogiemon_service_plus_the_network_and_the_credentials(
 
 def test_docs_mqtt_md_documents_every_field_of_both_schemas() -> None:
     from bogiemon.daemon.messages import EventMessage, LatestWindow
+    from bogiemon.judgement.diagnosis import Diagnosis
+    from bogiemon.judgement.events import DETAILS_TYPES, RunningContext, SisterDetails
 
     doc = (Path(__file__).resolve().parents[3] / "docs" / "mqtt.md").read_text()
     names = [f"`{field.alias or name}`" for model in (EventMessage, StatusMessage) for name, field in model.model_fields.items()]
     names += [f"`window.{name}`" for name in LatestWindow.model_fields]
     names += [f"`outbox.{name}`" for name in OutboxStatus.model_fields]
+    # The details of every kind: the records' fields are their JSON names (RunningContext's are
+    # written beside the others, not under `running`).
+    names += [f"`{f.name}`" for record in (*DETAILS_TYPES.values(), RunningContext, Diagnosis, SisterDetails) for f in dataclasses.fields(record) if f.name != "running"]
     assert [n for n in names if n not in doc] == []
-    assert '"bogiemon.event/1"' in doc and '"bogiemon.status/1"' in doc
+    assert '"bogiemon.event/2"' in doc and '"bogiemon.event/1"' in doc and '"bogiemon.status/1"' in doc

@@ -52,7 +52,7 @@ def test_listen_prints_each_event_once_and_stores_it_across_runs(tmp_path: Path,
     assert proc.returncode == 0, err
     printed = [json.loads(line) for line in out.splitlines()]
     assert [p["event_id"] for p in printed] == [e.event_id for e in events[:3]]  # the copy is dropped
-    assert printed[0]["schema"] == "bogiemon.event/1" and printed[0]["wagon_id"] == WAGON and printed[0]["seq"] == 1
+    assert printed[0]["schema"] == "bogiemon.event/2" and printed[0]["wagon_id"] == WAGON and printed[0]["seq"] == 1
     assert "not a valid message" in err
     # A second run with the same store: an event kept before is a duplicate still.
     proc = start_listen(broker.port, "--store", str(store), "--count", "1", "--client-id", "t2")
@@ -85,9 +85,20 @@ def test_listen_with_wrong_credentials_ends_with_one_line(tmp_path: Path, mosqui
 
 
 @pytest.mark.parametrize(
+    ("broker", "tls", "expected"),
+    [("localhost", False, ("localhost", 1883)), ("localhost", True, ("localhost", 8883)), ("h:1884", True, ("h", 1884)),
+     ("[::1]", False, ("::1", 1883)), ("[::1]:8884", False, ("::1", 8884)), ("::1", True, ("::1", 8883))],
+)  # fmt: skip
+def test_listen_defaults_the_port_to_mqtts_1883_or_8883_with_tls(broker: str, tls: bool, expected: tuple[str, int]) -> None:
+    from bogiemon.cli.listen import parse_broker
+
+    assert parse_broker(broker, tls) == expected
+
+
+@pytest.mark.parametrize(
     ("args", "expected"),
     [
-        (["--broker", "localhost"], "--broker: expected HOST:PORT, e.g. localhost:8883, got 'localhost'"),
+        (["--broker", "localhost:"], "--broker: expected HOST or HOST:PORT, e.g. localhost or localhost:8883, got 'localhost:'"),
         (["--broker", "h:1", "--tls-cert", "c.pem"], "--tls-cert and --tls-key go together"),
         (["--broker", "h:1", "--password-file", "p"], "--password-file needs --username-file"),
         (["--broker", "h:1", "--username-file", "/nonexistent/user"], "MQTT username file /nonexistent/user: cannot read it: No such file or directory"),

@@ -276,7 +276,7 @@ def test_the_service_delivers_its_events_status_and_alarm_frames_and_survives_a_
             alarm = next(f for f in iter(lambda: receiver.recv(DEADLINE_S), None) if f.arbitration_id == 0x300)
             first_publisher = service.delivery.publisher
             config_path.write_text(config_path.read_text().replace("status_period_s = 0.2", "status_period_s = 0.1"))
-            service.flags.reload.set()
+            service.request_reload()
             assert wait_until(lambda: (p := service.delivery.publisher) is not None and p is not first_publisher and p.connected)
             statuses_before = len(listener.statuses)
             assert wait_until(lambda: len(listener.statuses) > statuses_before)  # the new publisher reports
