@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
+import resource
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -25,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import guard  # noqa: E402
 from baseline import naive_indicators  # noqa: E402
 from timing import Figure, table, time_interleaved  # noqa: E402
 
@@ -91,11 +95,24 @@ def analyze_figures(runs: int, vs_python: str | None = None) -> list[Figure]:
         write_parquet_recording(paths["parquet"], samples.time_s, samples.accel_mps2)
         pythons = [sys.executable] + ([vs_python] if vs_python else [])
         commands = [[python, "-m", "bogiemon.cli.main", "analyze", str(paths[suffix])] for suffix, _ in formats for python in pythons]
+        # pyarrow's bare read of the same files, whole process: the floor under any reader of them.
+        bare = [[sys.executable, "-c", BARE_READ[suffix], str(paths[suffix])] for suffix in ("csv", "parquet")]
         # From a folder without a bogiemon/ in it: each interpreter imports its own tree.
-        seconds = time_interleaved(
-            [functools.partial(subprocess.run, command, check=True, stdout=subprocess.DEVNULL, cwd=tmp) for command in commands], runs
-        )
+        cpu: list[list[float]] = [[] for _ in (*commands, *bare)]
+        runners = [functools.partial(_child_cpu_s, command, tmp, into) for command, into in zip((*commands, *bare), cpu, strict=True)]
+        seconds = time_interleaved(runners, runs)
+        cpu = [c[1:] for c in cpu]  # the warm-up's left out, as time_interleaved leaves it out
     out: list[Figure] = []
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    for k, (suffix, name) in enumerate((("csv", "CSV"), ("parquet", "Parquet"))):
+        key = "analyze_1h_cpu_s" if suffix == "csv" else "analyze_1h_parquet_cpu_s"
+        floor = Figure.of(f"pyarrow_read_1h_{suffix}_cpu_s", f"  pyarrow's bare read of the same {name} file, whole process", "CPU s",
+                          cpu[len(commands) + k], COMMAND, higher_is_better=False)  # fmt: skip
+        ours = Figure.of(key, f"`bogiemon analyze` of the hour as {name}, whole process, CPU (guarded)", "CPU s",
+                         cpu[formats.index(next(f for f in formats if f[0] == suffix)) * len(pythons)], COMMAND, higher_is_better=False,
+                         target=3600.0 / ANALYZE_TARGET_X_REALTIME, note=f"load average {load}").compare(floor)  # fmt: skip
+        out += [ours, floor]
+    plain_csv: Figure | None = None  # the x-real-time figures' baseline
     for k, (suffix, name) in enumerate(formats):
         key = "analyze_1h" if suffix == "csv" else f"analyze_1h_{suffix.replace('.', '_')}"
         ours = Figure.of(f"{key}_x_realtime", f"`bogiemon analyze`, {name}, whole process", "x real time",
@@ -104,9 +121,26 @@ def analyze_figures(runs: int, vs_python: str | None = None) -> list[Figure]:
             theirs = Figure.of(f"{key}_vs_x_realtime", f"  the same with {vs_python}", "x real time",
                                [data_s / s for s in seconds[k * len(pythons) + 1]], COMMAND)  # fmt: skip
             out += [ours.compare(theirs), theirs]
+        elif plain_csv is None:
+            out.append(plain_csv := ours)
         else:
-            out.append(ours if suffix == "csv" else ours.compare(out[0]))
+            out.append(ours.compare(plain_csv))
     return out
+
+
+# pyarrow's own read of a recording, nothing else: `python -c CODE FILE`.
+BARE_READ = {
+    "csv": "import sys, pyarrow.csv as c; c.read_csv(sys.argv[1])",
+    "parquet": "import sys, pyarrow.parquet as q; q.read_table(sys.argv[1])",
+}
+
+
+def _child_cpu_s(command: list[str], cwd: str, into: list[float]) -> None:
+    """Run a command; append the CPU seconds (user + system, all its threads) it took."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, cwd=cwd)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    into.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
 
 
 def figures(minutes: float = 10.0, runs: int = 7, vs_python: str | None = None, only_analyze: bool = False) -> list[Figure]:
@@ -118,15 +152,22 @@ def figures(minutes: float = 10.0, runs: int = 7, vs_python: str | None = None, 
     return out
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="minutes of data for the core (default 10)")
     parser.add_argument("--runs", type=int, default=7, help="timed runs per figure (default 7)")
     parser.add_argument("--analyze-only", action="store_true", help="only `bogiemon analyze` of the one-hour files")
     parser.add_argument("--vs-python", metavar="PYTHON", help="also time another tree's analyze in the same rounds (e.g. ../main/.venv/bin/python)")
+    parser.add_argument("--record", action="store_true", help="append the guarded figures to bench/results/records.json (the guard's baseline)")
+    parser.add_argument("--accept-worse", action="store_true", help="with --record: record figures that missed their target too")
     args = parser.parse_args()
-    print(table(figures(args.minutes, args.runs, args.vs_python, args.analyze_only)))
+    measured = figures(args.minutes, args.runs, args.vs_python, args.analyze_only)
+    outcome = guard.check(measured, shlex.join(["bench/bench_core.py", *sys.argv[1:]]), record=args.record, accept_worse=args.accept_worse)
+    print(table(outcome.figures))
+    for line in outcome.messages:
+        print(line, file=sys.stderr)
+    return outcome.status
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

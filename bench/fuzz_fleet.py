@@ -444,7 +444,7 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
         return verdict
     with contextlib.suppress(OSError, ValueError, pa.ArrowException):
         damage_judged(judged, data["judged_damage"], outside)
-    report = output(data["report_output"], root, "report.html", {"JUDGED": judged})
+    report = output(data["report_output"], root, "report", {"JUDGED": judged})
     if data["cli"]:
         code = _run_cli(["fleet", "report", str(judged), "-o", str(report)])
         if code not in (0, 2):
@@ -454,10 +454,11 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
             write_report(judged, report)
         except ValueError:  # ReportError: a clear error, once nothing outside was touched
             return _untouched(untouched, fleet, outside)
-        try:
-            report.read_bytes().decode("utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            return f"the report is not UTF-8 text: {exc}"
+        for page in (report / "index.html", report / "worklist.csv", report / "worklist.json", *sorted((report / "wagons").glob("*.html"))):
+            try:
+                page.read_bytes().decode("utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                return f"the report's {page.name} is not UTF-8 text: {exc}"
     return _untouched(untouched, fleet, outside)
 
 

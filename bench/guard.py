@@ -34,8 +34,9 @@ FORMAT = 1
 TOLERANCE = 0.25  # a figure more than this above the last recorded one is a regression
 # The figures under guard: the daemon's CPU per feed and its peak memory (bench_daemon.py), the
 # gateway's install, the peak memory of its `bogiemon run` on CAN, its standing hours and its day
-# (bench_gateway.py), and on a real kernel's vcan0 the CAN source's CPU against candump's and the
-# peak memory of `bogiemon run` on CAN (bench_vcan.py).
+# (bench_gateway.py), on a real kernel's vcan0 the CAN source's CPU against candump's and the peak
+# memory of `bogiemon run` on CAN (bench_vcan.py), the CPU of `bogiemon analyze` of an hour as CSV
+# and as Parquet (bench_core.py) and of `fleet analyze` per wagon-hour on one worker (bench_fleet.py).
 GUARDED = (
     "daemon_can_cpu_s_per_h",
     "daemon_can_per_node_cpu_s_per_h",
@@ -48,6 +49,9 @@ GUARDED = (
     "gateway_day_cycled_cpu_s",
     "vcan_source_over_candump_cpu",
     "vcan_daemon_peak_rss_mib",
+    "analyze_1h_cpu_s",
+    "analyze_1h_parquet_cpu_s",
+    "fleet_cpu_s_per_wagon_h",
 )
 
 

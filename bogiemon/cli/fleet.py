@@ -4,7 +4,7 @@
     bogiemon fleet analyze FLEET -o WINDOWS [--scheduler tcp://HOST:PORT] [--workers N]
     bogiemon fleet calibrate WAGON --fleet FLEET --windows WINDOWS [--days D ...]  (or --uncommissioned)
     bogiemon fleet judge WINDOWS -o JUDGED [--fleet FLEET]
-    bogiemon fleet report JUDGED -o report.html
+    bogiemon fleet report JUDGED -o REPORT [--since YYYY-MM-DD]
 """
 
 from __future__ import annotations
@@ -53,10 +53,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     j.add_argument("--fleet", metavar="FLEET", help="the recordings tree with the wagons' configs (default: the one analysed)")
     j.set_defaults(run=run_judge)
 
-    r = fleet_sub.add_parser("report", help="one self-contained HTML page of the judged fleet")
+    r = fleet_sub.add_parser("report", help="the work list: a page per fleet and per wagon, CSV and JSON, no server")
     r.add_argument("judged", metavar="JUDGED", help="the folder of `fleet judge`")
-    r.add_argument("-o", "--output", required=True, metavar="HTML", help="the page to write")
+    r.add_argument("-o", "--output", required=True, metavar="REPORT",
+                   help="the report's folder: index.html (the work list), worklist.csv, worklist.json, wagons/<id>.html")
     r.add_argument("--title", help="the page's title (default: the fleet's name)")
+    r.add_argument("--since", metavar="YYYY-MM-DD",
+                   help="tell what changed since this date, UTC (default: since the previous report in REPORT, else over the last day)")
     r.set_defaults(run=run_report)
 
 
@@ -162,8 +165,10 @@ def run_report(args: argparse.Namespace) -> int:
     from bogiemon.fleet.paths import shown
     from bogiemon.fleet.report import write_report
 
-    done = write_report(args.judged, args.output, title=args.title)
-    print(f"{shown(done.path)}: the fleet report ({done.wagons} wagons, {done.bytes / 1024:.0f} KiB); open it in a browser")
+    done = write_report(args.judged, args.output, title=args.title, since=args.since)
+    states = ", ".join(f"{n} {state}" for state, n in done.states.items() if n)
+    print(f"{shown(done.index)}: the work list of {done.wagons} wagons ({states}); {done.changed} changed {done.compared_with}; "
+          f"open it in a browser (worklist.csv beside it)")
     return 0
 
 

@@ -45,6 +45,7 @@ from bogiemon.judgement.events import (
     SensorFaultDetails,
     Severity,
     SisterDetails,
+    SuspensionHint,
     SuspectedDetails,
     Trigger,
 )
@@ -127,6 +128,7 @@ def details_body(details: EventDetails) -> dict[str, Any]:
     if isinstance(details, SensorFaultDetails):
         out |= {"rms_mps2": list(details.rms_mps2), "problems": _problems_body(details.problems)}
         out |= _present(reported=None if details.reported is None else _problems_body(details.reported))
+        out |= _present(suspension=None if details.suspension is None else _suspension_body(details.suspension))
     elif isinstance(details, SensorClearedDetails):
         out |= {"rms_mps2": list(details.rms_mps2), "cleared": _problems_body(details.cleared)}
     elif isinstance(details, NotJudgedDetails):
@@ -159,7 +161,7 @@ def details_from_body(kind: EventKind, data: Mapping[str, Any]) -> EventDetails:
     if kind is EventKind.SENSOR_FAULT:
         return SensorFaultDetails(
             window_start_s=start_s, window_end_s=end_s, rms_mps2=d.field("rms_mps2", _numbers), problems=d.field("problems", _problems),
-            reported=d.field("reported", _problems, None),
+            reported=d.field("reported", _problems, None), suspension=d.field("suspension", _suspension, None),
         )  # fmt: skip
     if kind is EventKind.SENSOR_CLEARED:
         return SensorClearedDetails(window_start_s=start_s, window_end_s=end_s, rms_mps2=d.field("rms_mps2", _numbers), cleared=d.field("cleared", _problems))
@@ -191,6 +193,10 @@ def _sister_body(s: SisterDetails | None) -> dict[str, Any] | None:
     if s is None:
         return None
     return {"score": s.score, "warning": s.warning, "alarm": s.alarm, "baseline": s.baseline, "blamed": s.blamed, "own_scores": list(s.own_scores)}
+
+
+def _suspension_body(s: SuspensionHint) -> dict[str, Any]:
+    return {"corners": list(s.corners), "fused_score": s.fused_score, "alarm": s.alarm, "best_match": s.best_match}
 
 
 def _problems_body(problems: Problems) -> dict[str, list[str]]:
@@ -349,6 +355,11 @@ def _sister(value: Any, where: str) -> SisterDetails:
         score=d.number("score"), warning=d.number("warning"), alarm=d.number("alarm"), baseline=d.text("baseline"), blamed=blamed,
         own_scores=(own[0], own[1]),
     )  # fmt: skip
+
+
+def _suspension(value: Any, where: str) -> SuspensionHint:
+    d = _Reader(_object(value, where), f"{where}: ")
+    return SuspensionHint(corners=tuple(d.field("corners", _names)), fused_score=d.number("fused_score"), alarm=d.number("alarm"), best_match=d.text("best_match"))
 
 
 def _bogie(value: Any, where: str) -> str:

@@ -37,10 +37,11 @@ from bogiemon.judgement.windowing import BlockWindows, Status
 from bogiemon.detection import WindowIndicators
 from bogiemon.drivers.atomic import final_name_of, write_atomically, write_text_atomically
 from bogiemon.drivers.base import Block, EndOfStream, Source
-from bogiemon.drivers.recording import one_bogie
+from bogiemon.drivers.recording_format import RecordingError, one_bogie
 from bogiemon.fleet import rows
 from bogiemon.fleet.cluster import DaskRunner, Runner, check_options, dask_runner, local_client
 from bogiemon.fleet.layout import Fleet, FleetError, InputFile, Issue, scan_fleet
+from bogiemon.fleet.objects import fetch_recording
 from bogiemon.fleet.paths import inside, make_room, output_folder, shown, write_parquet
 from bogiemon.fleet.windows_files import (
     FORMAT, PART_FILE, SUMMARY_FILE, Footer, PartitionError, PartitionMeta, content_digest, identity, partition_path, partition_place, read_footer,
@@ -167,12 +168,34 @@ class _DayWindows:
             self.status.append(w.status)
 
 
+class _Unreadable(ValueError):
+    """An object-store recording that could not be fetched or read: why, without its URL or its
+    local copy's name (the issue names its URL)."""
+
+
 def _read(file: InputFile, task: DayTask) -> list[Block]:
-    """A recording's blocks on Unix time; raises for what cannot be used (the caller names it)."""
+    """A recording's blocks on Unix time; raises for what cannot be used (the caller names it).
+    One in an object store is fetched to a local copy for as long as it is read (fleet/objects.py)."""
+    if not file.url:
+        return _read_local(file.path, file, task)
+    with contextlib.ExitStack() as copies:
+        try:
+            local = copies.enter_context(fetch_recording(file.url, file.size_bytes))
+        except RecordingError as exc:  # too large, gone since the listing, or unreadable
+            raise _Unreadable(str(exc).removeprefix(f"{file.url}: ")) from None
+        try:
+            return _read_local(local, file, task)
+        except _OutOfDay:
+            raise
+        except Exception as exc:  # noqa: BLE001 - named by the caller, as a local file's is
+            raise _Unreadable(_unparsable(exc, str(local))) from None
+
+
+def _read_local(path: Path, file: InputFile, task: DayTask) -> list[Block]:
     # Opened as `replay` and `run` open a recording (the config's [source] layout and DBC for a
     # CAN log), in larger blocks for a CSV (fewer calls; the windows do not depend on them).
-    source = open_replay_source(file.path, task.config, max_block_s=CSV_BLOCK_S if file.is_samples else None)
-    one_bogie(source, file.path, "fleet analyze")  # its windows are one bogie's today
+    source = open_replay_source(path, task.config, max_block_s=CSV_BLOCK_S if file.is_samples else None)
+    one_bogie(source, path, "fleet analyze")  # its windows are one bogie's today
     try:
         blocks = _blocks(source)
     finally:
@@ -227,10 +250,13 @@ def analyze_day(task: DayTask) -> DayResult:
         try:
             blocks = _read(file, task)
         except _OutOfDay as exc:
-            skipped.append(Issue(str(file.path), str(exc)))
+            skipped.append(Issue(file.shown, str(exc)))
+            continue
+        except _Unreadable as exc:
+            skipped.append(Issue(file.shown, str(exc)))
             continue
         except Exception as exc:  # noqa: BLE001 - one file of thousands: named, skipped, counted; the rest goes on
-            skipped.append(Issue(str(file.path), _unparsable(exc, str(file.path))))
+            skipped.append(Issue(file.shown, _unparsable(exc, str(file.path))))
             continue
         read.append((blocks[0].start_s, -blocks[-1].end_s, file.path.name, file, blocks))
     read.sort(key=lambda r: r[:3])
@@ -248,7 +274,7 @@ def analyze_day(task: DayTask) -> DayResult:
             for block in blocks:
                 day.feed(block)
         except Exception as exc:  # noqa: BLE001 - e.g. a rate the config cannot run at
-            skipped.append(Issue(str(file.path), _unparsable(exc, str(file.path))))
+            skipped.append(Issue(file.shown, _unparsable(exc, str(file.path))))
             continue
         last_end_s = blocks[-1].end_s
         used += 1
@@ -338,7 +364,7 @@ def analyze_fleet(
     started = time.perf_counter()
     check_options(scheduler, n_workers)
     fleet = scan_fleet(root)
-    out = output_folder(out_dir, FleetError, "WINDOWS", {"FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
+    out = output_folder(out_dir, FleetError, "WINDOWS", fleet.local_inputs).resolve()  # what lies inside it is checked against it
     ledger = read_ledger(out)
     _remove_temporaries(out)
     tasks = day_tasks(fleet, out)
@@ -372,7 +398,7 @@ def analyze_fleet(
     issues = (*fleet.issues, *(i for r in results for i in r.skipped))
     analysed = sum(1 for r in results if not r.reused)
     summary = AnalyzeSummary(
-        root=str(fleet.root), out_dir=str(out), wagons=len(fleet.wagons), partitions=len(tasks), analysed=analysed,
+        root=fleet.location, out_dir=str(out), wagons=len(fleet.wagons), partitions=len(tasks), analysed=analysed,
         reused=len(tasks) - analysed, windows=sum(r.windows for r in results),
         recorded_s=sum(r.recorded_s for r in results if not r.reused), elapsed_s=time.perf_counter() - started,
         workers=workers, issues=tuple(issues), results=tuple(results), repaired=tuple(repaired),

@@ -43,6 +43,11 @@ def calibrate_wagon(
 ) -> FleetCalibration:
     """Write FLEET/<wagon>/calibration.toml from the wagon's analysed days; CalibrationError if too few windows."""
     fleet = scan_fleet(fleet_root)
+    if fleet.url:
+        raise FleetError(
+            f"{fleet.url}: calibrate writes the wagon's calibration.toml beside its config, in a local FLEET: copy the "
+            f"wagon's folder from the store, calibrate it there, and upload its calibration.toml"
+        )
     wagon = fleet.wagon(wagon_id)
     target = wagon.folder / CALIBRATION
     place = place_of(target)

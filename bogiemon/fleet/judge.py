@@ -27,6 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from bogiemon.judgement.decision import FUSED_TREND
+from bogiemon.judgement.diagnosis import Diagnosis
 from bogiemon.judgement.events import ConfirmedDetails, Event
 from bogiemon.daemon.messages import encode_event
 from bogiemon.judgement.models import finite_or_none
@@ -39,6 +40,7 @@ from bogiemon.fleet.judged import MeanEvidence, WagonJudged
 from bogiemon.fleet.judged_files import JUDGED_FORMAT, WagonState
 from bogiemon.fleet.cluster import DaskRunner, InProcess, Runner
 from bogiemon.fleet.layout import Day, Fleet, Issue, Wagon, scan_fleet
+from bogiemon.fleet.worklist import DEFAULT_BOGIE
 from bogiemon.fleet.paths import make_room, output_folder, shown, write_parquet
 from bogiemon.fleet.windows_files import PartitionError, partition_path, partition_place, read_footer, read_partition, read_summary
 
@@ -109,6 +111,7 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
     events: list[tuple[int, Event]] = []
     gaps = GapMemory()  # the gaps of the day's segment starts, counted across days as the monitor counts them
     last_end_s = -math.inf
+    last_data_s: float | None = None  # the newest window's end: how fresh the wagon's data are
     issues: list[Issue] = []
     days: list[str] = []
     # The footers first (cheap), so that the last day to judge is known before the days are read
@@ -153,7 +156,7 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
             events += [(len(events) + 1 + i, e) for i, e in enumerate(verdict.events)]
             series(verdict)
         if windows:
-            last_end_s = windows[-1].end_s
+            last_end_s = last_data_s = windows[-1].end_s
     mean_evidence: dict[str, MeanEvidence] = {
         load: {
             "first_day": np.mean(ev.first_day, axis=0).tolist() if ev.first_day else [],
@@ -165,12 +168,34 @@ def judge_wagon(wagon: Wagon, out_dir: str | Path) -> WagonJudged:
     }
     c, coverage = judge.counts, judge.coverage.state
     return WagonJudged(
+        diagnosis_now=_diagnosis_now(judge, events),
         wagon_id=wagon.wagon_id, events=tuple(events), series=pa.Table.from_pydict(series.columns, schema=SERIES_SCHEMA),
         mode=judge.mode, sensor_reported=dict(judge.health.state.reported), not_judged=coverage.reported,
         unjudged_running_s=coverage.unjudged_running_s, windows=c.windows, judged=c.judged, gated=c.gated,
         sensor_fault_windows=c.sensor_fault_windows, trend=_finite(series.trend), trend_alarm=_finite(series.trend_alarm),
-        days=tuple(days), evidence=mean_evidence, issues=tuple(issues),
+        days=tuple(days), evidence=mean_evidence, issues=tuple(issues), last_data_s=last_data_s,
     )  # fmt: skip
+
+
+def _diagnosis_now(judge: WindowJudge, events: Sequence[tuple[int, Event]]) -> dict[str, Any] | None:
+    """The diagnosis of an alarm in force at the period's end from all the running since it was
+    confirmed: the decision's own diagnosis of its trend's mean shift in the alarm's load state
+    (judgement/decision.py trend_diagnosis). The CONFIRMED event's was read off the few windows that
+    confirmed it; a day of running later the pitch-roll sign is often clear where it was not then."""
+    if judge.mode is not Mode.CONFIRMED:
+        return None
+    confirmed = next((e.details for _, e in reversed(events) if isinstance(e.details, ConfirmedDetails)), None)
+    if confirmed is None:
+        return None
+    return _diagnosis_entry(judge.decider.trend_diagnosis(confirmed.load).stated())
+
+
+def _diagnosis_entry(d: Diagnosis) -> dict[str, Any]:
+    """A diagnosis as wagons.json holds it (docs/fleet-formats.md)."""
+    return {
+        "corner": d.corner, "corners": [c.value for c in d.corners], "kind": d.kind, "corner_confidence": d.corner_confidence,
+        "kind_confidence": d.kind_confidence,
+    }  # fmt: skip
 
 
 def _not_judged(exc: PartitionError) -> Issue:
@@ -208,10 +233,10 @@ class JudgeSummary:
     issues: tuple[Issue, ...]
 
 
-def fleet_root_of(windows_dir: str | Path) -> Path:
-    """The fleet folder a windows dataset was analysed from (its _analysis.json)."""
+def fleet_root_of(windows_dir: str | Path) -> str:
+    """The fleet (a folder, or an object store's URL) a windows dataset was analysed from (its _analysis.json)."""
     try:
-        return Path(read_summary(Path(windows_dir), JudgeError).root)
+        return read_summary(Path(windows_dir), JudgeError).root
     except JudgeError as exc:
         raise JudgeError(f"{exc}; is {shown(windows_dir)} a windows dataset of `bogiemon fleet analyze`? Or name the fleet with --fleet") from None
 
@@ -228,7 +253,7 @@ def judge_fleet(
     if not Path(windows_dir).is_dir():
         raise JudgeError(f"{shown(windows_dir)}: no such windows dataset (run `bogiemon fleet analyze FLEET -o {shown(windows_dir)}` first)")
     fleet = scan_fleet(fleet_root if fleet_root is not None else fleet_root_of(windows_dir))
-    out = output_folder(out_dir, JudgeError, "JUDGED", {"WINDOWS": windows_dir, "FLEET": fleet.root}).resolve()  # what lies inside it is checked against it
+    out = output_folder(out_dir, JudgeError, "JUDGED", {"WINDOWS": windows_dir, **fleet.local_inputs}).resolve()  # what lies inside it is checked against it
     judged = _judge_all(fleet, windows_dir, client, progress)
     relative = fleet_relative(fleet, judged)
     entries = []
@@ -294,10 +319,7 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
     confirmed = [e.details for _, e in j.events if isinstance(e.details, ConfirmedDetails)]
     diagnosis = None
     if state is WagonState.CONFIRMED and confirmed and (d := confirmed[-1].diagnosis) is not None:
-        diagnosis = {
-            "corner": d.corner, "corners": [c.value for c in d.corners], "kind": d.kind, "corner_confidence": d.corner_confidence,
-            "kind_confidence": d.kind_confidence,
-        }  # fmt: skip
+        diagnosis = _diagnosis_entry(d)
     trend_ratio = (j.trend / j.trend_alarm) if j.trend is not None and j.trend_alarm else 0.0
     # Within a state: the trend's share of its alarm level orders the wagons (0..100).
     attention = ATTENTION[state] + min(max(trend_ratio, 0.0), 1.0) * 100.0
@@ -328,6 +350,8 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
             "seq": last_seq,
         },  # fmt: skip
         "diagnosis": diagnosis,
+        # Per bogie (worklist.bogie_of's names; one bogie judged here: "1").
+        "diagnosis_now": {} if j.diagnosis_now is None else {DEFAULT_BOGIE: j.diagnosis_now},
         "sensor_problems": j.sensor_reported,
         "trend": j.trend,
         "trend_alarm": j.trend_alarm,
@@ -339,6 +363,8 @@ def _wagon_entry(wagon: Wagon, j: WagonJudged, relative: dict[str, Any] | None) 
         "judged": j.judged,
         "gated": j.gated,
         "sensor_fault_windows": j.sensor_fault_windows,
+        "last_data_s": j.last_data_s,
+        "sensor_corners": {ch: getattr(wagon.config.sensors, ch).value for ch in ("a1", "a2", "a3")},
         "fleet_relative": relative,
         "notes": notes,
     }

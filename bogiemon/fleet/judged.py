@@ -4,7 +4,7 @@ page read it): a record, in a module of its own so that its readers need not loa
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TypedDict
+from typing import Any, TypedDict
 
 import pyarrow as pa
 
@@ -40,3 +40,6 @@ class WagonJudged:
     days: tuple[str, ...]
     evidence: dict[str, MeanEvidence]  # load -> first/last day mean coupling vector, windows
     issues: tuple[Issue, ...]
+    last_data_s: float | None = None  # the end of its newest window
+    # The alarm in force at the end: its diagnosis from all the running since (fleet/judge.py).
+    diagnosis_now: dict[str, Any] | None = None

@@ -131,7 +131,9 @@ def _is(value: Any, kind: str) -> bool:
 
 # Field -> kind; a trailing "?" allows null.
 # 2: the series' mode in the daemon's words ("normal", "suspected", "confirmed").
-JUDGED_FORMAT = 2
+# 3: each wagon's last_data_s (its newest window's end), sensor_corners (channel -> corner) and
+#    diagnosis_now (bogie -> the alarm in force's diagnosis at the period's end).
+JUDGED_FORMAT = 3
 TOP_FIELDS = {"format": "int", "generated_utc": "str", "fleet": "str", "wagons": "list", "inputs": "obj"}
 INPUT_FIELDS = {"wagons": "int", "recordings": "int", "skipped": "list"}
 SKIPPED_FIELDS = {"path": "str", "reason": "str"}
@@ -142,6 +144,7 @@ WAGON_FIELDS = {
     "attention": "num",
     "last_event": "obj?",
     "diagnosis": "obj?",
+    "diagnosis_now": "obj",
     "sensor_problems": "obj",
     "trend": "num?",
     "trend_alarm": "num?",
@@ -153,6 +156,8 @@ WAGON_FIELDS = {
     "judged": "int",
     "gated": "int",
     "sensor_fault_windows": "int",
+    "last_data_s": "num?",
+    "sensor_corners": "obj",
     "fleet_relative": "obj?",
     "notes": "list",
 }
@@ -226,6 +231,10 @@ def read_wagons_json(path: Path) -> dict[str, Any]:
             if not isinstance(problems, list):
                 raise ReportError(f"{path}: {where}.sensor_problems.{printable(channel, 16)}: expected a list of strings")
             _strings(problems, path, f"{where}.sensor_problems.{printable(channel, 16)}")
+        for bogie, d in entry["diagnosis_now"].items():
+            _check(d, DIAGNOSIS_FIELDS, path, f"{where}.diagnosis_now.{printable(bogie, 16)}")
+        if not all(isinstance(c, str) for c in entry["sensor_corners"].values()):
+            raise ReportError(f"{path}: {where}.sensor_corners: expected channel -> corner names (strings)")
         if entry["wagon"] in seen:
             raise ReportError(f"{path}: {where}: wagon {printable(entry['wagon'])!r} is listed twice")
         seen.add(entry["wagon"])

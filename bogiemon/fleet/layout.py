@@ -8,6 +8,7 @@ that does not parse is a FleetError, since it describes the whole fleet.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import os
 import re
@@ -19,6 +20,7 @@ from typing import Any
 from bogiemon.daemon.config import BogiemonConfig, ConfigError, load_config
 from bogiemon.drivers.files import FileKind, read_untrusted
 from bogiemon.drivers.recording import is_sample_recording_name
+from bogiemon.fleet.objects import SMALL_FILE_BYTES, ObjectStoreError, fetch, is_url, list_objects, open_store, scratch
 from bogiemon.fleet.paths import FIRST_DAY, inside, is_utf8, last_day, one_line, shown
 
 FLEET_FILE = "fleet.toml"
@@ -33,6 +35,8 @@ FLEET_FILE_KIND = FileKind(
     name="fleet file", description="fleet.toml is a page of TOML ([fleet] and [wagons.\"<id>\"])", max_bytes=1 << 20,
     too_large="fleet.toml is a page of TOML: is this the right file?",
 )  # fmt: skip
+# What the scan of an object store's copy says of every day and wagon, whose recordings stay in the store.
+EMPTY_COPY = ("an empty day: no recordings", "no day with recordings yet")
 NOT_UTF8 = "a name that is not UTF-8 (the windows, events and report hold UTF-8 only): rename it; skipped"
 
 
@@ -60,9 +64,15 @@ class Issue:
 class InputFile:
     """A recording as found: its name, size and modification time identify its contents."""
 
-    path: Path
+    path: Path  # in an object store: its key under the fleet's prefix
     size_bytes: int
     mtime_ns: int
+    url: str = ""  # in an object store: where it is read from (fleet/objects.py); "" for a local file
+
+    @property
+    def shown(self) -> str:
+        """Where it is, as a message names it."""
+        return self.url or str(self.path)
 
     @property
     def key(self) -> tuple[str, int, int]:
@@ -106,6 +116,17 @@ class Fleet:
     name: str
     wagons: tuple[Wagon, ...]
     issues: tuple[Issue, ...] = field(default=())
+    url: str = ""  # a fleet in an object store: its URL (root is then that of its configs' copies, gone)
+
+    @property
+    def location(self) -> str:
+        """Where the fleet is, as a summary records it and a later step scans it again."""
+        return self.url or str(self.root)
+
+    @property
+    def local_inputs(self) -> dict[str, Path]:
+        """The fleet's folder as an input no output may lie in (none for an object store)."""
+        return {} if self.url else {"FLEET": self.root}
 
     def wagon(self, wagon_id: str) -> Wagon:
         for w in self.wagons:
@@ -115,7 +136,7 @@ class Fleet:
         if why is not None:
             raise FleetError(f"{why.path}: {why.reason}")
         known = ", ".join(w.wagon_id for w in self.wagons[:10]) or "none"
-        raise FleetError(f"{shown(self.root)}: no usable wagon '{shown(wagon_id, 80)}' (usable wagons: {known})")
+        raise FleetError(f"{shown(self.location)}: no usable wagon '{shown(wagon_id, 80)}' (usable wagons: {known})")
 
     @property
     def recordings(self) -> int:
@@ -167,8 +188,11 @@ def _read_fleet_file(root: Path) -> dict[str, Any]:
 
 
 def scan_fleet(root: str | Path, today: dt.date | None = None) -> Fleet:
-    """The fleet under root; FleetError only when root or its fleet.toml cannot be used. A day
-    after the day after `today` (default: today, UTC) is skipped as no clock's reading yet."""
+    """The fleet under root (a folder, or an object store's URL: fleet/objects.py); FleetError only
+    when root or its fleet.toml cannot be used. A day after the day after `today` (default: today,
+    UTC) is skipped as no clock's reading yet."""
+    if is_url(root):
+        return scan_store(str(root), today)
     if not is_utf8(root):
         raise FleetError(f"{shown(root)}: the fleet folder's name is not UTF-8 (the windows, events and report hold UTF-8 only); rename it")
     try:
@@ -211,6 +235,66 @@ def scan_fleet(root: str | Path, today: dt.date | None = None) -> Fleet:
         if wagon is not None:
             wagons.append(wagon)
     return Fleet(root, str(meta.get("name", root.name)), tuple(wagons), tuple(issues))
+
+
+def scan_store(url: str, today: dt.date | None = None) -> Fleet:
+    """The fleet under an object store's prefix, by the local tree's rules: its small files
+    fetched into a scratch folder and scanned there as a local tree would be, its recordings
+    listed with their sizes and times and left in the store (fleet/objects.py)."""
+    try:
+        store = open_store(url)
+        objects = list_objects(store)
+    except ObjectStoreError as exc:
+        raise FleetError(str(exc)) from None
+    issues: list[Issue] = []
+    usable = []
+    for o in objects:
+        parts = o.key.split("/")
+        if any(p in ("", ".", "..") for p in parts) or len(parts) > 3:
+            issues.append(Issue(store.url_of(o.key), "not in the tree FLEET/<wagon-id>/<YYYY-MM-DD>/<recording>; skipped"))
+        else:
+            usable.append((parts, o))
+    with scratch("bogiemon-fleet-") as local:
+        for parts, o in usable:  # the tree's folders, and its small files to read
+            folder = local.joinpath(*parts[:-1])
+            folder.mkdir(parents=True, exist_ok=True)
+            if len(parts) <= 2 and o.key.endswith(".toml"):
+                try:
+                    fetch(store, o.key, local.joinpath(*parts), SMALL_FILE_BYTES, FleetError, o.size_bytes)
+                except FleetError as exc:
+                    issues.append(Issue(store.url_of(o.key), str(exc).removeprefix(store.url_of(o.key) + ": ")))
+            elif len(parts) <= 2:  # an empty stand-in, for the scan to name it (a stray file, a sidecar it ignores)
+                local.joinpath(*parts).touch()
+        scanned = scan_fleet(local, today)
+        recordings = {tuple(parts): o for parts, o in usable if len(parts) == 3}
+        wagons = []
+        for wagon in scanned.wagons:
+            days = []
+            for day_dir in sorted({p[1] for p in recordings if p[0] == wagon.wagon_id}):
+                date = _date(day_dir)
+                if date is None or not FIRST_DAY <= date <= last_day(today):
+                    continue  # named by the scan of the copy, whose day folders are there (empty)
+                files = []
+                for name in sorted(p[2] for p in recordings if p[:2] == (wagon.wagon_id, day_dir)):
+                    o = recordings[(wagon.wagon_id, day_dir, name)]
+                    if name.startswith("."):
+                        continue
+                    if recording_kind(name) is None:
+                        if not name.lower().endswith(IGNORED_SUFFIXES):
+                            issues.append(Issue(store.url_of(o.key), "not a recording (.csv, .csv.gz, .parquet or a CAN log: .asc, .blf, .log, .trc); skipped"))
+                        continue
+                    files.append(InputFile(Path(o.key), o.size_bytes, o.mtime_ns, url=store.url_of(o.key)))
+                if files:
+                    days.append(Day(day_dir, tuple(files)))
+            remote = store.url_of(wagon.wagon_id)
+            wagons.append(dataclasses.replace(wagon, folder=Path(wagon.wagon_id), config_path=wagon.config_path.relative_to(local),
+                                              calibration_path=None if wagon.calibration_path is None else Path(wagon.wagon_id, CALIBRATION),
+                                              days=tuple(days)))  # fmt: skip
+            if not days:
+                issues.append(Issue(remote, "no day with recordings yet"))
+        # What the scan of the copy said, naming the store's objects (its days hold no copies: not an issue).
+        issues += [Issue(i.path.replace(str(local), store.url, 1), i.reason) for i in scanned.issues if i.reason not in EMPTY_COPY]
+    return Fleet(Path(store.url), scanned.name if scanned.name != local.name else store.root.rsplit("/", 1)[-1], tuple(wagons), tuple(issues), url=store.url)
 
 
 def _entries(folder: Path, issues: list[Issue]) -> list[Path] | None:

@@ -165,12 +165,26 @@ class ClearedDetails(DecisionDetails):
 Problems = Mapping[str, tuple[str, ...]]
 
 
+@dataclass(frozen=True)
+class SuspensionHint:
+    """What a window's couplings said of a one-corner suspension fault while a sensor was noisy
+    (judgement/verdict.py, "a sensor fault never hides a suspension fault"): the diagonal pair its
+    pitch-roll sign names (corner names), the window's fused score and alarm level, and the
+    diagnosis's words for the match."""
+
+    corners: tuple[str, ...]
+    fused_score: float
+    alarm: float
+    best_match: str
+
+
 @dataclass(frozen=True, kw_only=True)
 class SensorFaultDetails(WindowDetails):
     KIND: ClassVar[EventKind] = EventKind.SENSOR_FAULT
     rms_mps2: tuple[float, ...]  # the window's RMS per channel after the high-pass
     problems: Problems  # found in this window
     reported: Problems | None = None  # every problem reported since the sensors were last healthy
+    suspension: SuspensionHint | None = None  # the couplings moved as a one-corner fault moves them
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -50,6 +50,19 @@ two channels' there; a channel later noise_floor_margin times above both is nois
 it is not in force. Noise that enters before a part's filter that cuts low (a MEMS part at ODR/10)
 is shaped like the frame's motion and is not seen there; the coherence checks above remain.
 
+A SENSOR FAULT NEVER HIDES A SUSPENSION FAULT. A broken spring at a sensor's corner lets that corner
+move in ways the other two sensors cannot explain, in the top octave too: the noise floor names that
+sensor noisy although it is sound (on the simulated fleet, wagon 005's broken spring at a3's corner
+was first reported as `SENSOR_FAULT a3 noisy`, and held back from judgement for a day). Noise seen by
+the floor alone (WindowHealth.floor_only: no RMS, low-band, coherence or layout check saw it) is by
+construction too faint to move the couplings the suspension is judged on: white noise adds the same
+density at 2-64 Hz, where the frame moves orders of magnitude more than in the top octave, and noise
+strong enough to matter there breaks the 0.5-1 Hz coherence or the RMS ratio first. Such a window is
+judged on its couplings (HealthSettings.judge_through_floor_noise), and the sensor is reported
+beside it; when the couplings moved as a one-corner fault moves them (the window at warning level or
+above, its pitch-roll sign naming a diagonal pair: judgement/diagnosis.py), the SENSOR_FAULT event
+says so too ("suspension"), so that neither is told alone. Every other sensor problem holds the
+judgement back as before: a dead, stuck, clipping or grossly noisy channel couples the modes itself.
 """
 
 from __future__ import annotations
@@ -97,10 +110,19 @@ class WindowHealth:
 
     gate: Gate | None
     problems: dict[str, tuple[SensorProblem, ...]]  # channel (or "source") -> problems
+    # The channels named noisy by the noise floor alone: noise in the top octave that no other check
+    # saw (module docstring, "A SENSOR FAULT NEVER HIDES A SUSPENSION FAULT").
+    floor_only: tuple[str, ...] = ()
 
     @property
     def sensors_ok(self) -> bool:
         return not self.problems
+
+    @property
+    def couplings_readable(self) -> bool:
+        """A sensor is flagged, but the suspension can be judged on the window's couplings: the
+        wagon runs steadily and every problem is noise the floor alone saw."""
+        return self.gate is None and bool(self.problems) and set(self.problems) == set(self.floor_only)
 
     @property
     def judgeable(self) -> bool:
@@ -246,7 +268,9 @@ def assess_window(
             flag(CHANNELS[noisy], SensorProblem.NOISY)
     # The noise floor needs no structure, only the commissioning's floors: any moving window whose
     # channels are otherwise sound (a dead or stuck one would make the others' ratios look noisy).
+    floor_only: list[str] = []
     if gate is not Gate.STANDSTILL and settings.structure_checks and not problems:
         for c in floor_noisy_channels(window, settings):
             flag(CHANNELS[c], SensorProblem.NOISY)
-    return WindowHealth(gate=gate, problems={k: tuple(v) for k, v in problems.items()})
+            floor_only.append(CHANNELS[c])
+    return WindowHealth(gate=gate, problems={k: tuple(v) for k, v in problems.items()}, floor_only=tuple(floor_only))

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from bogiemon.judgement.events import Event, EventDetails, Problems, SensorClearedDetails, SensorFaultDetails
+from bogiemon.judgement.events import Event, EventDetails, Problems, SensorClearedDetails, SensorFaultDetails, SuspensionHint
 from bogiemon.judgement.health import WindowHealth
 from bogiemon.detection import WindowIndicators
 
@@ -15,15 +15,22 @@ from bogiemon.detection import WindowIndicators
 class HealthState:
     reported: dict[str, list[str]]  # the problems of the last SENSOR_FAULT, empty when healthy
     clean_windows: int = 0
+    # Whether a problem reported holds the suspension's judgement back (every one but noise the
+    # floor alone saw: judgement/health.py); and whether a SENSOR_FAULT said the couplings moved as
+    # a one-corner suspension fault moves them.
+    holding: bool = True
+    suspension: bool = False
 
     def as_dict(self) -> dict[str, object]:
-        return {"reported": self.reported, "clean_windows": self.clean_windows}
+        return {"reported": self.reported, "clean_windows": self.clean_windows, "holding": self.holding, "suspension": self.suspension}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> HealthState:
         if not data:
             return cls(reported={})
-        return cls(reported={k: list(v) for k, v in data["reported"].items()}, clean_windows=int(data["clean_windows"]))
+        # A state saved before "holding" was kept holds the judgement back, as it then did.
+        return cls(reported={k: list(v) for k, v in data["reported"].items()}, clean_windows=int(data["clean_windows"]),
+                   holding=bool(data.get("holding", True)), suspension=bool(data.get("suspension", False)))  # fmt: skip
 
 
 class HealthTracker:
@@ -47,24 +54,35 @@ class HealthTracker:
         """A SENSOR_FAULT is reported and not yet cleared."""
         return bool(self.state.reported)
 
-    def update(self, window: WindowIndicators, health: WindowHealth) -> list[Event]:
+    @property
+    def holds_judgement(self) -> bool:
+        """A sensor fault is reported that holds the suspension's judgement back until it clears."""
+        return self.faulted and self.state.holding
+
+    def update(self, window: WindowIndicators, health: WindowHealth, holds: bool = True, suspension: SuspensionHint | None = None) -> list[Event]:
+        """The window's sensor events. holds: whether its problems hold the suspension's judgement
+        back; suspension: what its couplings said of a one-corner suspension fault, told in the
+        SENSOR_FAULT beside the sensor (a fault already reported is told again when this is new)."""
         s = self.state
         current = {ch: sorted(p.value for p in problems) for ch, problems in health.problems.items()}
         if current:
             s.clean_windows = 0
+            s.holding = (s.holding and bool(s.reported)) or holds
             grown = {ch: sorted(set(s.reported.get(ch, [])) | set(ps)) for ch, ps in {**s.reported, **current}.items()}
-            if grown != s.reported:
+            told = suspension is not None and not s.suspension
+            if grown != s.reported or told:
                 s.reported = grown
+                s.suspension = s.suspension or told
                 found = SensorFaultDetails(
                     window_start_s=window.start_s, window_end_s=window.end_s, rms_mps2=tuple(window.rms_mps2), problems=_stated(current),
-                    reported=_stated(grown),
+                    reported=_stated(grown), suspension=suspension,
                 )  # fmt: skip
                 return [self._event(window, found)]
             return []
         if s.reported and health.gate is None:
             s.clean_windows += 1
             if s.clean_windows >= self.clear_after_windows:
-                previous, s.reported, s.clean_windows = s.reported, {}, 0
+                previous, s.reported, s.clean_windows, s.holding, s.suspension = s.reported, {}, 0, True, False
                 cleared = SensorClearedDetails(window_start_s=window.start_s, window_end_s=window.end_s, rms_mps2=tuple(window.rms_mps2), cleared=_stated(previous))
                 return [self._event(window, cleared)]
         return []

@@ -44,6 +44,11 @@ class HealthSettings:
     noise_floor_ratio: tuple[float, ...] = ()
     # A floor this many times both of those is a noisy sensor (a prior: judgement/noise_floor.py).
     noise_floor_margin: float = 1.8
+    # A sensor flagged noisy by the noise floor alone (noise no other check saw, too faint to move the
+    # couplings of 2-64 Hz) holds back no judgement of the suspension: the window is judged on its
+    # couplings, and the sensor reported beside it (judgement/health.py, "A SENSOR FAULT NEVER HIDES A
+    # SUSPENSION FAULT"). False judges nothing under any sensor problem: what the lab compares with.
+    judge_through_floor_noise: bool = True
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.layout_checks) - set(LAYOUT_CHECKS))

@@ -18,7 +18,9 @@ from typing import Any
 
 from bogiemon.judgement.coverage import CoverageState, CoverageTracker
 from bogiemon.judgement.decision import Decider, DecisionSettings, DecisionState, Judgement
-from bogiemon.judgement.events import Event
+from bogiemon.judgement.rules import Level
+from bogiemon.judgement.diagnosis import diagnose
+from bogiemon.judgement.events import Event, SuspensionHint
 from bogiemon.judgement.settings import HealthSettings
 from bogiemon.judgement.health import WindowHealth, assess_window
 from bogiemon.judgement.models import LoadDiscriminant, LoadModel, LoadSignature, excitation_of, finite_or_none
@@ -132,6 +134,9 @@ class Prepared:
     events: tuple[Event, ...]
     features: WindowFeatures | None = None
     choice: LoadChoice | None = None
+    # Judged through noise only the floor saw: the sensors' state is advanced in conclude(), once
+    # the decision says what the couplings showed.
+    through_noise: bool = False
 
     @property
     def judgeable(self) -> bool:
@@ -201,20 +206,32 @@ class WindowJudge:
         before either's decision. Every prepared window must be concluded, once, in order."""
         s = self.settings
         health = assess_window(window, s.health, status, gaps_last_hour, s.geometry)
+        # Noise the floor alone saw cannot move the couplings judged (judgement/health.py, "A SENSOR
+        # FAULT NEVER HIDES A SUSPENSION FAULT"): the suspension is judged on them, and the sensor's
+        # state advanced once the decision is made, its SENSOR_FAULT saying what the couplings said.
+        if s.health.judge_through_floor_noise and health.couplings_readable and not self.health.holds_judgement:
+            return self._with_load(window, status, health, (), through_noise=True)
         events = self.health.update(window, health)
         # Nothing is judged until a sensor fault has cleared: a faulty channel can pass a single
         # window's checks (noise that the track's own excitation hides) and still couple the modes.
-        if not health.judgeable or self.health.faulted:
+        if not health.judgeable or self.health.holds_judgement:
             return Prepared(window, status, health, tuple(events))
+        return self._with_load(window, status, health, tuple(events))
+
+    def _with_load(self, window: WindowIndicators, status: Status, health: WindowHealth, events: tuple[Event, ...], through_noise: bool = False) -> Prepared:
+        s = self.settings
         features = WindowFeatures(window.spectra, s.geometry) if window.spectra is not None else None
         load_vector = finite_or_none(features.load) if features is not None else None
         choice = choose_load(s.load, load_vector, excitation_of(window), s.load_states, s.load_discriminant, s.load_model)
-        return Prepared(window, status, health, tuple(events), features, choice)
+        return Prepared(window, status, health, events, features, choice, through_noise)
 
     def conclude(self, prepared: Prepared, extra: Mapping[str, tuple[float, Threshold]] | None = None) -> WindowVerdict:
         """The second half of judge(): the decision (with `extra` judged values beside the window's
-        own, Decider.update), the coverage, the outcome counted."""
+        own, Decider.update), the sensors' state where it waited for it, the coverage, the outcome counted."""
         verdict = self._decide(prepared, extra)
+        if prepared.through_noise:
+            sensor = self.health.update(prepared.window, prepared.health, holds=False, suspension=self._one_corner(verdict))
+            verdict = dataclasses.replace(verdict, events=(*sensor, *verdict.events))
         unfamiliar = verdict.unfamiliar if verdict.outcome is Outcome.UNFAMILIAR else None
         said = self.coverage.update(prepared.window, verdict.judgement is not None, unfamiliar)
         self.counts.count(verdict.outcome)
@@ -233,3 +250,16 @@ class WindowJudge:
         judgement, decided = self.decider.update(p.window, p.choice.load, p.choice.context(), p.features, p.choice.level_margin, extra)
         events += decided
         return verdict(judgement=judgement, load=p.choice.load, p_full=p.choice.p_full, features=p.features)
+
+    def _one_corner(self, verdict: WindowVerdict) -> SuspensionHint | None:
+        """What a judged window's couplings say of a one-corner suspension fault: the diagonal pair
+        its shift's pitch-roll sign names, when the window is at warning level or above (None else)."""
+        j, load = verdict.judgement, verdict.load
+        baseline = self.settings.decision.baselines.get(load) if load is not None else None
+        if j is None or load is None or baseline is None or j.shift is None or j.worst < Level.WARNING:
+            return None
+        found = diagnose([j.shift], baseline, load)
+        if not found.corners:
+            return None
+        score, _, alarm = j.headline()
+        return SuspensionHint(tuple(c.value for c in found.corners), score, alarm, found.best_match)

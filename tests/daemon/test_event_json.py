@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from bogiemon.daemon.event_json import EventJsonError, details_from_body, event_body, event_from_body
+from bogiemon.daemon.event_json import EventJsonError, details_body, details_from_body, event_body, event_from_body
 from bogiemon.daemon.messages import EVENT_SCHEMA, EventMessage, SchemaError, decode, encode_event
 from bogiemon.daemon.store import EventStore
 from bogiemon.daemon.store_file import _MIGRATIONS, SCHEMA_VERSION
@@ -28,6 +28,7 @@ from bogiemon.judgement.events import (
     SensorFaultDetails,
     SisterDetails,
     SuspectedDetails,
+    SuspensionHint,
     Trigger,
 )
 from bogiemon.judgement.rules import Threshold
@@ -210,3 +211,14 @@ def test_the_sister_evidence_of_a_wagon_reads_back_as_its_record(kind: EventKind
     body["details"]["sister"]["own_scores"] = [1.0]
     with pytest.raises(EventJsonError, match="^details: sister: own_scores: expected two numbers"):
         event_from_body(body)
+
+
+def test_a_sensor_fault_that_points_at_a_corner_pair_reads_back_as_written_and_one_without_states_none() -> None:
+    noisy = {"a3": ("noisy",)}
+    hint = SuspensionHint(("trailing-left", "leading-right"), 80.5, 67.0, "pitch-roll -3.1 sd at 4-8 Hz: trailing-left or leading-right")
+    pointed = SensorFaultDetails(window_start_s=10.0, window_end_s=130.0, rms_mps2=(1.0, 1.1, 1.4), problems=noisy, reported=noisy, suspension=hint)
+    body = json.loads(json.dumps(details_body(pointed)))
+    assert body["suspension"]["corners"] == ["trailing-left", "leading-right"]
+    assert details_from_body(EventKind.SENSOR_FAULT, body) == pointed
+    alone = dataclasses.replace(pointed, suspension=None)
+    assert "suspension" not in details_body(alone) and details_from_body(EventKind.SENSOR_FAULT, details_body(alone)) == alone

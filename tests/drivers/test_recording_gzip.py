@@ -138,3 +138,23 @@ def test_a_gz_recording_replays_through_the_csv_source_not_a_can_log_reader(tmp_
     block = source.read(0.1)
     assert block is not None and block.start_s == pytest.approx(t[0], abs=1e-6)
     np.testing.assert_allclose(block.accel_mps2, a[:500], atol=5e-7)
+
+
+def test_a_gz_recording_is_decompressed_once_and_read_as_its_plain_text(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    time_s, accel = samples()
+    write_csv_recording(tmp_path / "r.csv", time_s, accel)
+    write_csv_recording(tmp_path / "r.csv.gz", time_s, accel)
+    expected = read_csv_recording(tmp_path / "r.csv")
+    inflated: list[int] = []
+    real_read = gzip.GzipFile.read
+
+    def counted(self: gzip.GzipFile, size: int | None = -1) -> bytes:
+        data = real_read(self, size)
+        inflated.append(len(data))
+        return data
+
+    monkeypatch.setattr(gzip.GzipFile, "read", counted)
+    got = read_csv_recording(tmp_path / "r.csv.gz")
+    assert sum(inflated) == (tmp_path / "r.csv").stat().st_size  # the survey's pass alone inflated it
+    np.testing.assert_array_equal(got.time_s, expected.time_s)
+    np.testing.assert_array_equal(got.accel_mps2, expected.accel_mps2)

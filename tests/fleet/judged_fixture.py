@@ -20,7 +20,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from bogiemon.daemon.messages import encode_event
+from bogiemon.detection import Corner
+from bogiemon.judgement.diagnosis import Diagnosis
 from bogiemon.judgement.events import (
+    DEFAULT_BOGIE,
     DEFAULT_SEVERITY,
     ClearedDetails,
     ConfirmedDetails,
@@ -29,6 +32,7 @@ from bogiemon.judgement.events import (
     KOfN,
     SensorFaultDetails,
     SuspectedDetails,
+    SuspensionHint,
     Trigger,
 )
 from bogiemon.judgement.rules import Threshold
@@ -57,6 +61,10 @@ class WagonSpec:
     type: str = "Sgns-Y25"
     commissioned: tuple[str, ...] = ("full", "tare")
     notes: tuple[str, ...] = ()
+    bogie: str | None = None  # the bogie its events name (None: they name none, as a one-bogie gateway's)
+    days_behind: int = 0  # its data end this many days before the others' (a gateway that stopped)
+    # The corners its SENSOR_FAULT says the couplings point at (a spring at the sensor's corner).
+    sensor_suspension: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -82,7 +90,16 @@ DEFAULT_FLEET = (
     WagonSpec("31-80-4557-006", "suspected", type="Sgns-Y25-light"),
     WagonSpec("31-80-4557-005", "no_data", commissioned=(), notes=("no recordings",)),
 )
-DIAGNOSIS = {"corner": "leading-left", "kind": "spring-softer", "corner_confidence": 0.84, "kind_confidence": 0.91}
+DIAGNOSIS = Diagnosis(
+    corners=(Corner.LEADING_LEFT, Corner.TRAILING_RIGHT), kind="unknown", corner_confidence=0.84, kind_confidence=0.0,
+    best_match="pitch-roll +4.1, bounce-roll +3.2 sd at 4-8 Hz: leading-left or trailing-right", cosine=1.0, windows=3,
+)  # fmt: skip
+# The diagnosis as wagons.json holds it (the CONFIRMED event's, as JSON).
+DIAGNOSIS_BODY = {
+    "corner": DIAGNOSIS.corner, "corners": [c.value for c in DIAGNOSIS.corners], "kind": DIAGNOSIS.kind,
+    "corner_confidence": DIAGNOSIS.corner_confidence, "kind_confidence": DIAGNOSIS.kind_confidence,
+}  # fmt: skip
+CORNERS = {"a1": "leading-left", "a2": "leading-right", "a3": "trailing-left"}
 
 
 def _scores(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -110,7 +127,9 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
     wagon.columns = cols
     if spec.kind == "no_data":
         return wagon
-    day0 = datetime.fromisoformat(FIRST_DAY).replace(tzinfo=UTC)
+    day0 = datetime.fromisoformat(FIRST_DAY).replace(tzinfo=UTC) - timedelta(days=spec.days_behind)
+    bogie = DEFAULT_BOGIE if spec.bogie is None else spec.bogie
+    pointed = SuspensionHint(spec.sensor_suspension, 80.0, 67.0, "") if spec.sensor_suspension else None
     n_total = shape.days * shape.recordings_per_day * shape.windows_per_recording
     scores = _scores(spec.kind, n_total, rng)
     mode, over_alarm, clean, trend, i = "NORMAL", 0, 0, 0.0, 0
@@ -128,8 +147,10 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                 if faulty and not wagon.reported_fault:
                     wagon.reported_fault = True
                     noisy = {"a3": ("noisy",)}
-                    found = SensorFaultDetails(window_start_s=time_s - 120.0, window_end_s=time_s, rms_mps2=(0.9, 1.1, 1.4), problems=noisy, reported=noisy)
-                    wagon.events.append(_event(time_s, found, rng))
+                    found = SensorFaultDetails(
+                        window_start_s=time_s - 120.0, window_end_s=time_s, rms_mps2=(0.9, 1.1, 1.4), problems=noisy, reported=noisy, suspension=pointed,
+                    )  # fmt: skip
+                    wagon.events.append(_event(time_s, found, rng, bogie=bogie))
                 score = float(scores[i])
                 if judged:
                     trend = 0.98 * trend + 0.02 * score / 8.0
@@ -140,14 +161,15 @@ def _simulate(spec: WagonSpec, shape: FleetShape, rng: np.random.Generator) -> _
                     clean = clean + 1 if score <= lv["warning"] else 0
                     if mode != "CONFIRMED" and over_alarm >= CONFIRM_AFTER:
                         mode = "CONFIRMED"
-                        confirmed = ConfirmedDetails(**_decided(time_s, load), alarm_windows=KOfN(CONFIRM_AFTER, CONFIRM_AFTER), trigger=Trigger.WINDOWS)
-                        wagon.events.append(_event(time_s, confirmed, rng, {"fused_score": score}))
+                        confirmed = ConfirmedDetails(**_decided(time_s, load), alarm_windows=KOfN(CONFIRM_AFTER, CONFIRM_AFTER), trigger=Trigger.WINDOWS,
+                                                     diagnosis=DIAGNOSIS)  # fmt: skip
+                        wagon.events.append(_event(time_s, confirmed, rng, {"fused_score": score}, bogie=bogie))
                     elif mode == "NORMAL" and score > lv["warning"]:
                         mode = "SUSPECTED"
-                        wagon.events.append(_event(time_s, SuspectedDetails(**_decided(time_s, load)), rng, {"fused_score": score}))
+                        wagon.events.append(_event(time_s, SuspectedDetails(**_decided(time_s, load)), rng, {"fused_score": score}, bogie=bogie))
                     elif mode == "SUSPECTED" and clean >= CLEAR_AFTER:
                         mode = "NORMAL"
-                        wagon.events.append(_event(time_s, ClearedDetails(**_decided(time_s, load), cleared=Mode.SUSPECTED), rng))
+                        wagon.events.append(_event(time_s, ClearedDetails(**_decided(time_s, load), cleared=Mode.SUSPECTED), rng, bogie=bogie))
                 nan = float("nan")
                 cols["time_s"].append(time_s)
                 cols["judged"].append(judged)
@@ -178,7 +200,7 @@ def _decided(time_s: float, load: str) -> _Decided:
     return _Decided(window_start_s=time_s - 120.0, window_end_s=time_s, load=LoadState(load), thresholds=limits, method=Method.FUSED)
 
 
-def _event(time_s: float, details: EventDetails, rng: np.random.Generator, indicators: dict[str, float] | None = None) -> Event:
+def _event(time_s: float, details: EventDetails, rng: np.random.Generator, indicators: dict[str, float] | None = None, bogie: str = DEFAULT_BOGIE) -> Event:
     return Event(
         time_s=time_s,
         kind=details.KIND,
@@ -187,6 +209,7 @@ def _event(time_s: float, details: EventDetails, rng: np.random.Generator, indic
         indicators=indicators or {},
         details=details,
         event_id=f"{int(rng.integers(2**62)):016x}{int(rng.integers(2**62)):016x}",
+        bogie=bogie,
     )
 
 
@@ -215,7 +238,8 @@ def _summary(w: _Wagon, seqs: list[int]) -> dict[str, Any]:
         "state": state,
         "attention": ATTENTION[state] + (0.0 if trend is None or not trend_alarm else round(trend / trend_alarm, 4)),
         "last_event": last_event,
-        "diagnosis": dict(DIAGNOSIS) if spec.kind == "confirmed" else None,
+        "diagnosis": dict(DIAGNOSIS_BODY) if spec.kind == "confirmed" else None,
+        "diagnosis_now": {},
         "sensor_problems": {"a3": ["noisy"]} if w.reported_fault else {},
         "trend": trend,
         "trend_alarm": trend_alarm,
@@ -227,6 +251,8 @@ def _summary(w: _Wagon, seqs: list[int]) -> dict[str, Any]:
         "judged": int(sum(judged)),
         "gated": sum(1 for g in cols["gate"] if g),
         "sensor_fault_windows": sum(1 for p in cols["sensor_problems"] if p),
+        "last_data_s": cols["time_s"][-1] if n else None,
+        "sensor_corners": dict(CORNERS),
         "fleet_relative": None
         if n == 0
         else {
@@ -291,7 +317,7 @@ def write_judged(
     if sort:
         entries.sort(key=lambda e: -e["attention"])
     doc = {
-        "format": 2,
+        "format": 3,
         "generated_utc": "2026-12-02T10:00:00Z",
         "fleet": fleet,
         "wagons": entries,
@@ -314,3 +340,23 @@ def read_wagons_json(root: Path) -> dict[str, Any]:
 
 def write_wagons_json(root: Path, doc: dict[str, Any]) -> None:
     (root / "wagons.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
+
+
+def many_wagons(n: int) -> tuple[WagonSpec, ...]:
+    """A fleet of n synthetic wagons of three types: mostly normal, one in 97 confirmed, one in 20
+    suspected, blipping or with a sensor fault, one in 211 without data, one in 150 whose data
+    stopped five days early; commissioned for both loads, full only or not at all."""
+    kinds = ["normal"] * 17 + ["suspected", "blip", "sensor_fault"]
+    types = ("Sgns-Y25", "Sgns-Y25-light", "Habbiins")
+    commissioned: tuple[tuple[str, ...], ...] = (("full", "tare"), ("full",), ())
+    return tuple(
+        WagonSpec(
+            f"31-80-{4000 + i:04d}-{i % 10}", "confirmed" if i % 97 == 0 else "no_data" if i % 211 == 0 else kinds[i % len(kinds)],
+            type=types[i % 3], commissioned=commissioned[i % 7 % 3], days_behind=5 if i % 150 == 0 else 0,
+        )  # fmt: skip
+        for i in range(n)
+    )
+
+
+# A small shape for a large fleet: two days of one 10-minute recording each.
+SMALL_SHAPE = FleetShape(days=2, recordings_per_day=1, windows_per_recording=60)

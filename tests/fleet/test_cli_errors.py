@@ -105,16 +105,15 @@ def test_judged_that_is_a_file_or_inside_its_inputs_is_one_line(tmp_path: Path, 
     assert not (trees / "windows" / "judged").exists() and not (trees / "fleet" / "judged").exists()
 
 
-def test_a_report_is_never_renamed_over_a_device_a_folder_or_judged_itself(tmp_path: Path, trees: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_report_is_never_written_over_a_device_or_into_judged_itself(tmp_path: Path, trees: Path, capsys: pytest.CaptureFixture[str]) -> None:
     judged = str(trees / "judged")
-    # Run as root, a rename over /dev/null would replace the device with the page.
-    assert "/dev/null: a special file in its place; the report is a file" in _error(["fleet", "report", judged, "-o", "/dev/null"], capsys)
+    assert "/dev/null: not a folder; the report is a folder" in _error(["fleet", "report", judged, "-o", "/dev/null"], capsys)
     os.mkfifo(tmp_path / "fifo")
-    assert "fifo: a FIFO in its place" in _error(["fleet", "report", judged, "-o", str(tmp_path / "fifo")], capsys)
-    assert "a folder in its place" in _error(["fleet", "report", judged, "-o", str(tmp_path)], capsys)
-    assert "the report lies inside JUDGED" in _error(["fleet", "report", judged, "-o", str(trees / "judged" / "wagons.json")], capsys)
-    assert "cannot be written" in _error(["fleet", "report", judged, "-o", str(tmp_path / "missing" / "r.html")], capsys)
-    assert "no such folder" in _error(["fleet", "report", str(tmp_path / "missing"), "-o", str(tmp_path / "r.html")], capsys)
+    assert "fifo: not a folder" in _error(["fleet", "report", judged, "-o", str(tmp_path / "fifo")], capsys)
+    assert "the report lies inside JUDGED" in _error(["fleet", "report", judged, "-o", str(trees / "judged" / "r")], capsys)
+    assert "the report is a folder (index.html" in _error(["fleet", "report", judged, "-o", str(tmp_path / "r.html")], capsys)
+    assert "no such folder" in _error(["fleet", "report", str(tmp_path / "missing"), "-o", str(tmp_path / "r")], capsys)
+    assert "--since 'yesterday': expected a date" in _error(["fleet", "report", judged, "-o", str(tmp_path / "r"), "--since", "yesterday"], capsys)
     assert os.path.exists("/dev/null") and not Path("/dev/null").is_file()
 
 

@@ -36,14 +36,14 @@ def test_a_recording_whose_name_is_not_utf8_is_skipped_and_named_and_the_rest_go
         summary = tiny.analyze(root, tmp_path / "windows")
         assert (summary.partitions, summary.analysed) == (4, 4 - 4 * run)
     judged = judge_fleet(tmp_path / "windows", tmp_path / "judged")
-    report = write_report(tmp_path / "judged", tmp_path / "report.html")
+    report = write_report(tmp_path / "judged", tmp_path / "report")
 
     named = [i for i in summary.issues if "not UTF-8" in i.reason]
     assert [i.path for i in named] == [str(good.parent / "07\\xff\\xfe.csv.gz")]
     table = pq.read_table(partition_path(tmp_path / "windows", "W1", tiny.DAYS[0]))
     assert set(table.column("recording").to_pylist()) == {good.name}
     assert any(i.path.endswith("07\\xff\\xfe.csv.gz") for i in judged.issues)
-    assert report.wagons == 2 and "07\\xff\\xfe.csv.gz" in (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert report.wagons == 2 and "07\\xff\\xfe.csv.gz" in (tmp_path / "report" / "index.html").read_text(encoding="utf-8")
 
 
 def test_wagon_and_day_folders_whose_names_are_not_utf8_are_skipped_and_named(tmp_path: Path) -> None:
@@ -73,7 +73,7 @@ def test_a_day_no_gateways_clock_reads_is_skipped_and_the_fleet_judged_and_repor
 
     summary = tiny.analyze(root, tmp_path / "windows")
     judged = judge_fleet(tmp_path / "windows", tmp_path / "judged")
-    report = write_report(tmp_path / "judged", tmp_path / "report.html")
+    report = write_report(tmp_path / "judged", tmp_path / "report")
 
     newest = min("2099-12-31", (dt.datetime.now(dt.UTC).date() + dt.timedelta(days=1)).isoformat())
     assert _reasons(summary.issues)[date] == f"a day outside 2000-01-01 .. {newest} (no gateway's clock reads it now); skipped"

@@ -104,7 +104,7 @@ def test_a_damaged_partition_is_named_by_judge_and_analysed_again_by_analyze(tmp
     (named,) = [i for i in judged[0].issues if i.path == str(path)]  # type: ignore[attr-defined]
     assert problem in named.reason and "day not judged" in named.reason
     assert judged[0].wagons == 2  # type: ignore[attr-defined]
-    write_report(tmp_path / "judged", tmp_path / "report.html")
+    write_report(tmp_path / "judged", tmp_path / "report")
 
     again = tiny.analyze(root, windows)
     assert [(i.path, problem in i.reason) for i in again.repaired] == [(str(path), True)]
@@ -184,9 +184,9 @@ def test_a_damaged_judged_folder_is_one_clear_error_of_report_without_blocking(t
     judged = _judged(tmp_path)
     name, spoil, message = JUDGED_DAMAGES[damage]
     spoil(judged / name)
-    error = tiny.without_blocking(lambda: write_report(judged, tmp_path / "report.html"))
+    error = tiny.without_blocking(lambda: write_report(judged, tmp_path / "report"))
     assert isinstance(error, ReportError) and message in str(error), error
-    assert "\n" not in str(error) and not (tmp_path / "report.html").exists()
+    assert "\n" not in str(error) and not (tmp_path / "report").exists()
 
 
 @pytest.mark.parametrize("name", ["events.jsonl", "wagons.json"])
@@ -195,4 +195,4 @@ def test_a_folder_in_the_place_of_a_judged_file_is_replaced_when_judged_again(tm
     (judged / name).unlink()
     (judged / name).mkdir()
     judge_fleet(tmp_path / "windows", judged)
-    assert (judged / name).is_file() and write_report(judged, tmp_path / "report.html").wagons == 2
+    assert (judged / name).is_file() and write_report(judged, tmp_path / "report").wagons == 2

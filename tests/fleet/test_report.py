@@ -1,4 +1,4 @@
-"""`fleet report`: a JUDGED folder as one self-contained HTML page (fleet/report.py, fleet/svg.py)."""
+"""`fleet report`: a JUDGED folder as the work list and a page per wagon (fleet/report.py, fleet/svg.py)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from bogiemon.fleet import svg
 from bogiemon.fleet.judged_files import ReportError
 from bogiemon.fleet.plot import GAP_PX, LEFT_PX, MAX_IDLE_S, MAX_POINTS_PER_PANEL, RIGHT_PX, SCORE_TOP_PX
-from bogiemon.fleet.report import html_id, write_report
+from bogiemon.fleet.report import write_report
+from bogiemon.fleet.worklist import file_id
 from tests.fleet.judged_fixture import DEFAULT_FLEET, FleetShape, WagonSpec, read_wagons_json, write_judged, write_wagons_json
 
 CONFIRMED_WAGON = "31-80-4557-001"
@@ -28,21 +29,29 @@ def judged(tmp_path: Path) -> Path:
     return write_judged(tmp_path / "JUDGED")
 
 
-def _page(judged: Path, tmp_path: Path) -> str:
-    out = tmp_path / "report.html"
+class _Report(str):
+    """The work list's page as text, and the report's folder."""
+
+    folder: Path
+
+
+def _page(judged: Path, tmp_path: Path) -> _Report:
+    out = tmp_path / "report"
     write_report(judged, out)
-    return out.read_text(encoding="utf-8")
+    page = _Report((out / "index.html").read_text(encoding="utf-8"))
+    page.folder = out
+    return page
 
 
-def _section(page: str, wagon: str) -> str:
-    start = page.index(f'<section class="w" id="{html_id(wagon)}">')
-    return page[start : page.index("</section>", start)]
+def _section(page: _Report, wagon: str) -> str:
+    """The wagon's own page."""
+    return (page.folder / "wagons" / f"{file_id(wagon)}.html").read_text(encoding="utf-8")
 
 
 def _table_order(page: str) -> list[str]:
-    body = page[page.index('<table class="fleet"') :]
+    body = page[page.index('<table class="work"') :]
     body = body[: body.index("</table>")]
-    return re.findall(r'<td class="id"><a href="#[^"]*">([^<]*)</a>', body)
+    return re.findall(r'<td class="id"><a href="wagons/[^"]*">([^<]*)</a>', body)
 
 
 def _events(judged: Path) -> list[dict]:
@@ -60,11 +69,12 @@ def test_table_lists_wagons_by_attention_descending_even_when_the_file_is_not_so
     assert _table_order(_page(judged, tmp_path)) == by_attention
 
 
-def test_every_wagon_has_a_section_with_a_plot_that_the_table_links_to(judged: Path, tmp_path: Path) -> None:
+def test_every_wagon_has_a_page_with_a_plot_that_the_work_list_links_to(judged: Path, tmp_path: Path) -> None:
     page = _page(judged, tmp_path)
     for spec in DEFAULT_FLEET:
-        assert f'href="#{html_id(spec.wagon)}"' in page
-        assert "<svg" in _section(page, spec.wagon)
+        assert f'href="wagons/{file_id(spec.wagon)}.html"' in page
+        assert "<svg" in _section(page, spec.wagon) and 'href="../index.html"' in _section(page, spec.wagon)
+    assert "<svg" not in page  # the work list is lines only: a fleet of thousands stays small
 
 
 def test_each_event_is_a_vertical_line_of_its_kind_on_its_wagons_plot(judged: Path, tmp_path: Path) -> None:
@@ -97,26 +107,33 @@ def test_a_wagon_without_windows_has_an_empty_plot_that_says_so(judged: Path, tm
 def test_header_counts_wagons_per_state_and_lists_the_skipped_inputs(judged: Path, tmp_path: Path) -> None:
     page = _page(judged, tmp_path)
     header = page[page.index("<header>") : page.index("</header>")]
-    assert '<span class="b b-CONFIRMED">CONFIRMED</span> 1' in header
-    assert '<span class="b b-NORMAL">NORMAL</span> 2' in header
+    assert '<button type="button" data-state="CONFIRMED"><span class="b b-CONFIRMED">CONFIRMED</span> 1</button>' in header
+    assert '<button type="button" data-state="NORMAL"><span class="b b-NORMAL">NORMAL</span> 2</button>' in header
     assert "<details><summary>1 input skipped</summary>" in header
     assert "<td>31-80-4557-003/2026-11-31</td><td>day folder name is no date</td>" in header
 
 
-def test_table_shows_diagnosis_sensor_problems_and_trend_against_its_alarm(judged: Path, tmp_path: Path) -> None:
+def test_each_line_says_what_to_do_and_how_sure_with_the_figure_explained(judged: Path, tmp_path: Path) -> None:
     page = _page(judged, tmp_path)
-    rows = {w: row for w, row in zip(_table_order(page), re.findall(r"<tr><td class=\"id\">.*?</tr>", page), strict=True)}
-    assert "leading-left (84%) · spring-softer (91%)" in rows[CONFIRMED_WAGON]
-    assert "a3: noisy" in rows["31-80-4557-002"]
+    rows = {w: row for w, row in zip(_table_order(page), re.findall(r"<tr [^>]*><td class=\"id\">.*?</tr>", page), strict=True)}
+    assert "Inspect the primary springs of bogie 1, leading-left or trailing-right axle box, within 2 days." in rows[CONFIRMED_WAGON]
+    assert "Check the sensor: sensor a3 of bogie 1 (trailing-left axle box) reads noise; fix its cable or mounting, within 7 days." in rows["31-80-4557-002"]
     entry = next(w for w in read_wagons_json(judged)["wagons"] if w["wagon"] == NORMAL_WAGON)
-    assert f"{entry['trend']:.3g} / {entry['trend_alarm']:.3g}" in rows[NORMAL_WAGON]
+    ratio = entry["trend"] / entry["trend_alarm"]
+    assert f'title="the trend of the fused score ({entry["trend"]:.3g}) is {ratio:.2g} times its alarm level' in rows[NORMAL_WAGON]
+    assert f"healthy · {ratio:.2g}x alarm</span>" in rows[NORMAL_WAGON] and "Nothing to do." in rows[NORMAL_WAGON]
 
 
-def test_the_page_refers_to_nothing_outside_itself(judged: Path, tmp_path: Path) -> None:
+def test_the_pages_refer_to_nothing_outside_the_report(judged: Path, tmp_path: Path) -> None:
     page = _page(judged, tmp_path)
-    for outside in ("http://", "https://", "src=", "<link", "@import", "url(", "//cdn"):
-        assert outside not in page, outside
-    assert page.count("<script") == 1  # the table's sorter, inline
+    wagon = _section(page, CONFIRMED_WAGON)
+    for text in (page, wagon):
+        for outside in ("http://", "https://", "src=", "<link", "@import", "url(", "//cdn"):
+            assert outside not in text, outside
+    links = set(re.findall(r'href="([^"]*)"', page))
+    assert links == {"worklist.csv", "worklist.json"} | {f"wagons/{file_id(s.wagon)}.html" for s in DEFAULT_FLEET}
+    assert set(re.findall(r'href="([^"]*)"', wagon)) == {"../index.html"}
+    assert page.count("<script") == 1 and "<script" not in wagon  # the work list's filter and sorter, inline
 
 
 def test_text_from_the_data_is_escaped_and_inert(tmp_path: Path) -> None:
@@ -127,19 +144,23 @@ def test_text_from_the_data_is_escaped_and_inert(tmp_path: Path) -> None:
     )
     judged = write_judged(tmp_path / "JUDGED", fleet, fleet='Keeper "X" <script>alert(3)</script>', skipped=(("<script>p</script>", "<i>r</i>"),))
     page = _page(judged, tmp_path)
+    wagon = _section(page, hostile)
     assert page.count("<script") == 1 and "<img" not in page and "<b>t</b>" not in page and "<i>r</i>" not in page
+    assert "<script" not in wagon and "<img" not in wagon
     assert "&lt;script&gt;alert(&quot;id&quot;)&lt;/script&gt;" in page
     assert "&lt;img src=x onerror=&quot;alert(1)&quot;&gt;" in page
-    assert re.fullmatch(r"wagon-[A-Za-z0-9._~-]+", html_id(hostile))
+    assert re.fullmatch(r"[A-Za-z0-9._~-]+", file_id(hostile))
 
 
-def test_summary_states_the_file_it_wrote(judged: Path, tmp_path: Path) -> None:
-    out = tmp_path / "r.html"
+def test_summary_states_the_folder_it_wrote(judged: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r"
     summary = write_report(judged, out, title="Fleet page")
-    assert summary.path == out and summary.bytes == out.stat().st_size and summary.wagons == len(DEFAULT_FLEET)
+    assert summary.path == out and summary.bytes == (out / "index.html").stat().st_size and summary.wagons == len(DEFAULT_FLEET)
+    assert sorted(p.name for p in out.iterdir()) == ["index.html", "wagons", "worklist.csv", "worklist.json"]
+    assert len(list((out / "wagons").iterdir())) == len(DEFAULT_FLEET)
     assert dict(summary.states) == {"CONFIRMED": 1, "SUSPECTED": 1, "SENSOR_FAULT": 1, "NOT_JUDGED": 0, "NORMAL": 2, "NO_DATA": 1}
     assert summary.events == len(_events(judged)) and summary.skipped_inputs == 1
-    assert "<title>Fleet page</title>" in out.read_text()
+    assert "<title>Fleet page</title>" in (out / "index.html").read_text()
 
 
 def test_a_long_series_is_decimated_to_the_panel_limit_keeping_its_peak(tmp_path: Path) -> None:
@@ -150,8 +171,8 @@ def test_a_long_series_is_decimated_to_the_panel_limit_keeping_its_peak(tmp_path
     peak = 15_000
     score[peak] = 1e4  # one window far above the rest
     pq.write_table(table.set_column(table.schema.get_field_index("score"), "score", pa.array(score)), path)
-    summary = write_report(judged, tmp_path / "r.html")
-    section = _section((tmp_path / "r.html").read_text(), "w1")
+    summary = write_report(judged, tmp_path / "r")
+    section = (tmp_path / "r" / "wagons" / "w1.html").read_text()
     d = re.search(r'<path class="s" d="([^"]*)"', section).group(1)
     xs, ys = _absolute_points(d)
     assert len(xs) <= MAX_POINTS_PER_PANEL and summary.points <= 2 * MAX_POINTS_PER_PANEL
@@ -242,7 +263,7 @@ def test_an_event_inside_a_cut_gap_is_drawn_at_the_gaps_start(judged: Path, tmp_
 
 def test_a_missing_folder_is_a_report_error(tmp_path: Path) -> None:
     with pytest.raises(ReportError, match=r"no such folder"):
-        write_report(tmp_path / "nope", tmp_path / "r.html")
+        write_report(tmp_path / "nope", tmp_path / "r")
 
 
 def _mutated(tmp_path: Path, change) -> Path:
@@ -263,22 +284,22 @@ def _mutated(tmp_path: Path, change) -> Path:
         (lambda d: d["wagons"][2].update(days="two"), r"wagons\[2\]\.days: expected an integer"),
         (lambda d: d["wagons"][2].update(state="BROKEN"), r"wagons\[2\]\.state: 'BROKEN' is none of"),
         (lambda d: d["wagons"][2].update(wagon=d["wagons"][0]["wagon"]), r"wagons\[2\]: wagon '31-80-4557-003' is listed twice"),
-        (lambda d: d.update(format=1), r"wagons\.json: format 1, this bogiemon reads format 2"),
+        (lambda d: d.update(format=1), r"wagons\.json: format 1, this bogiemon reads format 3"),
     ],
     ids=["wagon-field", "top-field", "last-event-field", "diagnosis-field", "type", "state", "duplicate", "format"],
 )
 def test_a_wagons_json_off_the_contract_is_one_line_naming_the_file_and_field(tmp_path: Path, change, message: str) -> None:
     judged = _mutated(tmp_path, change)
     with pytest.raises(ReportError, match=message) as info:
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
     assert "\n" not in str(info.value) and str(judged / "wagons.json") in str(info.value)
-    assert not (tmp_path / "r.html").exists()
+    assert not (tmp_path / "r").exists()
 
 
 def test_wagons_json_that_is_not_json_is_a_report_error(judged: Path, tmp_path: Path) -> None:
-    (judged / "wagons.json").write_text('{"format": 2, "wagons": [', encoding="utf-8")
+    (judged / "wagons.json").write_text('{"format": 3, "wagons": [', encoding="utf-8")
     with pytest.raises(ReportError, match=r"wagons\.json: not valid JSON \("):
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
 
 
 def test_a_nan_reads_as_null_so_a_nan_attention_is_named(judged: Path, tmp_path: Path) -> None:
@@ -287,10 +308,10 @@ def test_a_nan_reads_as_null_so_a_nan_attention_is_named(judged: Path, tmp_path:
     doc["wagons"][0]["trend"] = float("nan")
     write_wagons_json(judged, doc)  # Python's json writes NaN
     with pytest.raises(ReportError, match=r"wagons\[0\]\.attention: expected a number$"):
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
     doc["wagons"][0]["attention"] = 1.0
     write_wagons_json(judged, doc)
-    assert write_report(judged, tmp_path / "r.html").wagons == len(DEFAULT_FLEET)  # a NaN trend is none
+    assert write_report(judged, tmp_path / "r").wagons == len(DEFAULT_FLEET)  # a NaN trend is none
 
 
 def test_a_diagnosis_with_unknown_parts_says_unknown_for_them(judged: Path, tmp_path: Path) -> None:
@@ -299,13 +320,13 @@ def test_a_diagnosis_with_unknown_parts_says_unknown_for_them(judged: Path, tmp_
     confirmed["diagnosis"] = {"corner": None, "kind": "friction", "corner_confidence": None, "kind_confidence": 0.6}
     write_wagons_json(judged, doc)
     section = _section(_page(judged, tmp_path), CONFIRMED_WAGON)
-    assert 'diagnosis: <span class="muted">unknown</span> · friction (60%)' in section
+    assert "<dt>Diagnosis</dt><dd>corner: not told</dd>" in section
 
 
 def test_a_missing_wagons_json_is_a_report_error(judged: Path, tmp_path: Path) -> None:
     (judged / "wagons.json").unlink()
     with pytest.raises(ReportError, match=r"wagons\.json: missing"):
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
 
 
 def test_a_bad_event_line_names_its_line(judged: Path, tmp_path: Path) -> None:
@@ -313,14 +334,14 @@ def test_a_bad_event_line_names_its_line(judged: Path, tmp_path: Path) -> None:
     lines[2] = lines[2].replace('"kind":"', '"kind":"X')
     (judged / "events.jsonl").write_text("\n".join(lines) + "\n")
     with pytest.raises(ReportError, match=r"events\.jsonl: line 3: kind: "):
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
 
 
 def test_a_series_without_a_column_names_the_file_and_column(judged: Path, tmp_path: Path) -> None:
     path = judged / "series" / f"wagon={NORMAL_WAGON}" / "part-0.parquet"
     pq.write_table(pq.read_table(path).drop_columns(["trend"]), path)
     with pytest.raises(ReportError, match=rf"wagon={NORMAL_WAGON}/part-0\.parquet: missing column 'trend'"):
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
 
 
 def test_a_series_time_outside_unix_seconds_is_a_report_error(judged: Path, tmp_path: Path) -> None:
@@ -330,7 +351,7 @@ def test_a_series_time_outside_unix_seconds_is_a_report_error(judged: Path, tmp_
     time_s[5] = 1e300
     pq.write_table(table.set_column(0, "time_s", pa.array(time_s)), path)
     with pytest.raises(ReportError, match=r"part-0\.parquet: column 'time_s': a time outside Unix seconds"):
-        write_report(judged, tmp_path / "r.html")
+        write_report(judged, tmp_path / "r")
 
 
 def test_a_wagon_id_that_is_no_folder_name_reads_no_series(tmp_path: Path) -> None:
@@ -339,9 +360,12 @@ def test_a_wagon_id_that_is_no_folder_name_reads_no_series(tmp_path: Path) -> No
     assert "no series is read for it" in _section(page, "../../etc")
 
 
-def test_an_unwritable_output_is_a_report_error(judged: Path, tmp_path: Path) -> None:
-    with pytest.raises(ReportError, match=r"r\.html: cannot be written"):
-        write_report(judged, tmp_path / "no-such-folder" / "r.html")
+def test_an_output_that_is_no_folder_is_a_report_error(judged: Path, tmp_path: Path) -> None:
+    (tmp_path / "r").write_text("a file")
+    with pytest.raises(ReportError, match=r"r: not a folder; the report is a folder"):
+        write_report(judged, tmp_path / "r")
+    with pytest.raises(ReportError, match=r"r\.html: the report is a folder \(index\.html, worklist\.csv, a page per wagon\): name a folder$"):
+        write_report(judged, tmp_path / "r.html")
 
 
 # --- svg.py against direct references ---------------------------------------------------------
@@ -418,6 +442,6 @@ def test_log_range_spans_whole_decades_holding_values_and_levels() -> None:
 
 @settings(max_examples=100, deadline=None)
 @given(st.text(min_size=1, max_size=20), st.text(min_size=1, max_size=20))
-def test_html_id_is_safe_and_one_to_one(a: str, b: str) -> None:
-    assert re.fullmatch(r"wagon-[A-Za-z0-9._~-]+", html_id(a))
-    assert (html_id(a) == html_id(b)) == (a == b)
+def test_file_id_is_a_safe_file_name_and_one_to_one(a: str, b: str) -> None:
+    assert re.fullmatch(r"[A-Za-z0-9_~-][A-Za-z0-9._~-]*", file_id(a))
+    assert (file_id(a) == file_id(b)) == (a == b)

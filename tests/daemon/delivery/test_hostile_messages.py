@@ -413,7 +413,7 @@ def test_what_the_outbox_encodes_a_reader_accepts_as_the_same_event(
 ) -> None:  # fmt: skip
     window = {"window_start_s": time_s - 120.0, "window_end_s": time_s}
     for details in (
-        SensorFaultDetails(**window, rms_mps2=(rms, 1.0, 1.0), problems=problems, reported=problems),
+        SensorFaultDetails(window_start_s=time_s - 120.0, window_end_s=time_s, rms_mps2=(rms, 1.0, 1.0), problems=problems, reported=problems),
         NotJudgedDetails(**window, message=text, unjudged_running_s=7200.0, last_judged_s=None, unlike=text),
     ):
         check_the_outbox_encodes_as_a_reader_reads(Event.of(time_s, details, "c0ffee", {"i1": value}), seq)  # type: ignore[dict-item]
