@@ -214,8 +214,11 @@ WINDOW_FIELDS = ["start_s", "end_s", "judged", "gate", "sensors_ok", "sensor_pro
 
 
 def mutated(body: dict[str, Any], fields: list[str], data: st.DataObject) -> dict[str, Any]:
+    # None to three changes: a message left as it was (or changed where nothing is checked) is always
+    # kept, so both sides of the edge are tried in every run, whatever the draw (with one to three
+    # changes, a run of 300 could draw none that stayed valid: the typed details refuse most changes).
     body = json.loads(json.dumps(body))
-    for _ in range(data.draw(st.integers(1, 3))):
+    for _ in range(data.draw(st.integers(0, 3))):
         field = data.draw(st.sampled_from(fields))
         if data.draw(st.booleans()):
             body[field] = data.draw(JSON_VALUES)
