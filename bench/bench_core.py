@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import guard  # noqa: E402
 from baseline import naive_indicators  # noqa: E402
-from timing import Figure, table, time_interleaved  # noqa: E402
+from timing import Figure, time_interleaved  # noqa: E402
 
 from bogiemon.detection import BogieGeometry, IndicatorStream, ProcessingSettings  # noqa: E402
 from bogiemon.drivers.recording import read_recording, write_csv_recording, write_parquet_recording  # noqa: E402
@@ -163,10 +163,7 @@ def main() -> int:
     args = parser.parse_args()
     measured = figures(args.minutes, args.runs, args.vs_python, args.analyze_only)
     outcome = guard.check(measured, shlex.join(["bench/bench_core.py", *sys.argv[1:]]), record=args.record, accept_worse=args.accept_worse)
-    print(table(outcome.figures))
-    for line in outcome.messages:
-        print(line, file=sys.stderr)
-    return outcome.status
+    return outcome.shown()
 
 
 if __name__ == "__main__":

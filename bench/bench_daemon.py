@@ -42,7 +42,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import guard  # noqa: E402
-from timing import Figure, table  # noqa: E402
+from timing import Figure  # noqa: E402
 
 from bogiemon.daemon.config import load_config  # noqa: E402
 from bogiemon.daemon.logs import configure_logging  # noqa: E402
@@ -344,10 +344,7 @@ def main() -> int:
     except (BenchError, guard.GuardError) as exc:
         print(f"bench_daemon: error: {exc}", file=sys.stderr)
         return 2
-    print(table(outcome.figures))
-    for line in outcome.messages:
-        print(line, file=sys.stderr)
-    return outcome.status
+    return outcome.shown()
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import guard  # noqa: E402
-from timing import Figure, table  # noqa: E402
+from timing import Figure  # noqa: E402
 
 COMMAND = "make bench-fleet"
 RUN_S = 600.0
@@ -199,10 +199,7 @@ def main() -> int:
     args = parser.parse_args()
     measured = figures(args.runs, args.wagons, args.days, args.recordings)
     outcome = guard.check(measured, shlex.join(["bench/bench_fleet.py", *sys.argv[1:]]), record=args.record, accept_worse=args.accept_worse)
-    print(table(outcome.figures))
-    for line in outcome.messages:
-        print(line, file=sys.stderr)
-    return outcome.status
+    return outcome.shown()
 
 
 if __name__ == "__main__":

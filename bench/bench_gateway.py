@@ -58,7 +58,7 @@ sys.path.insert(1, str(Path(__file__).resolve().parents[1]))  # tests.drivers.fr
 
 import guard  # noqa: E402
 from bench_daemon import FS_HZ, START_UP_S, BenchError, healthy_accel  # noqa: E402
-from timing import Figure, table  # noqa: E402
+from timing import Figure  # noqa: E402
 
 from can.interfaces import socketcan  # noqa: E402
 
@@ -389,10 +389,7 @@ def main() -> int:
     except (BenchError, guard.GuardError) as exc:
         print(f"bench_gateway: error: {exc}", file=sys.stderr)
         return 2
-    print(table(outcome.figures))
-    for line in outcome.messages:
-        print(line, file=sys.stderr)
-    return outcome.status
+    return outcome.shown()
 
 
 if __name__ == "__main__":

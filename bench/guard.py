@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from timing import Figure, format_value
+from timing import Figure, format_value, table
 
 REPO = Path(__file__).resolve().parents[1]
 RECORDS_PATH = REPO / "bench" / "results" / "records.json"
@@ -216,6 +216,16 @@ class Outcome:
     figures: list[Figure]  # judged: the guarded ones with their targets
     messages: list[str]  # what was recorded or refused, what missed
     status: int  # 0, or 1 when a guarded figure missed its target
+
+    def shown(self) -> int:
+        """Print the figures' table, then what was recorded, refused or missed (on stderr); the
+        status a benchmark exits with."""
+        import sys
+
+        print(table(self.figures))
+        for line in self.messages:
+            print(line, file=sys.stderr)
+        return self.status
 
 
 def git_commit(repo: Path) -> str:
