@@ -35,6 +35,10 @@ from bogiemon.drivers.recording_format import (
 
 _ROW_FORMATS = {n: ",".join(["%.6f"] * (n + 1)) + "\n" for n in COLUMN_SETS}  # by the channels
 _WRITE_CHUNK_ROWS = 65536
+# The decompressed copy of a .csv.gz (module docstring) stays under this: an hour at 500 Hz is about
+# 72 MB of text; a day's recording is decompressed again by each pass rather than fill /tmp (a
+# tmpfs on many gateways, counted in the service's memory).
+MAX_COPY_BYTES = 256 << 20
 # zlib's level 6 (gzip's own default): on 220 s of simulated bogie at 500 Hz (5.1 MB of text) 1.80 MB
 # in 0.35 s here, against 1.78 MB in 1.2 s at level 9 and 2.02 MB in 0.06 s at level 1.
 GZIP_LEVEL = 6
@@ -81,6 +85,16 @@ class CsvRecordingReader(RecordingReader):
         self._plain: Path | None = None  # a compressed file's decompressed copy (module docstring)
         self._plain_dir: tempfile.TemporaryDirectory[str] | None = None
 
+    def _drop_copy(self) -> None:
+        self._plain = None
+        if self._plain_dir is not None:
+            self._plain_dir.cleanup()
+            self._plain_dir = None
+
+    def close(self) -> None:
+        super().close()
+        self._drop_copy()
+
     def _text(self) -> UntrustedFile:
         """The file's text, opened for one pass: the decompressed copy of a compressed file."""
         if self._plain is None:
@@ -91,12 +105,15 @@ class CsvRecordingReader(RecordingReader):
 
     def open(self, min_samples: int) -> None:
         plain: Path | None = None
+        copier: _Copying | None = None
         with self.file.reopen() as raw, contextlib.ExitStack() as copying:
             f = raw
             if raw.compressed:  # the survey's reading, each chunk also written to the copy: one decompression
-                self._plain_dir = tempfile.TemporaryDirectory(prefix="bogiemon-csv-")
-                plain = Path(self._plain_dir.name) / "recording.csv"
-                f = cast(UntrustedFile, _Copying(raw, copying.enter_context(plain.open("xb"))))
+                with contextlib.suppress(OSError):  # no temporary folder: no copy, every pass decompresses
+                    self._plain_dir = tempfile.TemporaryDirectory(prefix="bogiemon-csv-")
+                    plain = Path(self._plain_dir.name) / "recording.csv"
+                    copier = _Copying(raw, copying.enter_context(plain.open("xb")))
+                    f = cast(UntrustedFile, copier)
             first_chunk = f.read(MAX_LINE_BYTES + 2)
             end = re.search(rb"\r\n|\r|\n", first_chunk)
             header = first_chunk[: end.start()] if end else first_chunk
@@ -125,7 +142,10 @@ class CsvRecordingReader(RecordingReader):
                     )
             self.column_set = WAGON_COLUMNS if len(self._layout.picks) == len(WAGON_COLUMNS) else COLUMNS
             survey = _survey(f, first_chunk[self._header_bytes :])
-        self._plain = plain  # whole: the survey read the stream to its end
+        if copier is not None and copier.abandoned:
+            self._drop_copy()
+        else:
+            self._plain = plain  # whole: the survey read the stream to its end
         self.n_samples = survey.rows
         first_s, last_s = _row_time(survey.first, self._layout), _row_time(survey.last, self._layout)
         time_name = self._layout.names[self._layout.picks[0]]
@@ -308,17 +328,25 @@ def _line_blocks(f: UntrustedFile, data: bytes = b"") -> Iterator[bytes]:
 
 class _Copying:
     """A compressed UntrustedFile whose every read is also written to a copy (the stream
-    decompressed once: module docstring); everything else is the file's own."""
+    decompressed once: module docstring); everything else is the file's own. The copy is a speed-up,
+    never a condition: past MAX_COPY_BYTES, or when the temporary folder cannot take it, it is given
+    up (abandoned) and the later passes decompress the file again, as they did before it."""
 
     def __init__(self, f: UntrustedFile, copy: BinaryIO) -> None:
         self._f, self._copy = f, copy
+        self._written = 0
+        self.abandoned = False
 
     def read(self, size: int | None = -1) -> bytes:
         data = self._f.read(size)
-        try:
-            self._copy.write(data)
-        except OSError as exc:
-            self._f.refuse(f"cannot be decompressed into a temporary copy ({exc.strerror or exc}); is the temporary folder full?")
+        if not self.abandoned:
+            self._written += len(data)
+            try:
+                if self._written > MAX_COPY_BYTES:
+                    raise OSError("larger than the copy's bound")
+                self._copy.write(data)
+            except OSError:
+                self.abandoned = True
         return data
 
     def __getattr__(self, name: str) -> Any:

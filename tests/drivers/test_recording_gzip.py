@@ -2,7 +2,10 @@
 with the same messages, and a cut or damaged stream is one error naming the file."""
 
 import gzip
+import io
+import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -158,3 +161,37 @@ def test_a_gz_recording_is_decompressed_once_and_read_as_its_plain_text(tmp_path
     assert sum(inflated) == (tmp_path / "r.csv").stat().st_size  # the survey's pass alone inflated it
     np.testing.assert_array_equal(got.time_s, expected.time_s)
     np.testing.assert_array_equal(got.accel_mps2, expected.accel_mps2)
+
+
+@pytest.mark.parametrize("why", ["over-the-bound", "no-room"])
+def test_a_gz_recording_whose_copy_cannot_be_kept_is_decompressed_again_and_reads_the_same(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, why: str
+) -> None:
+    # The copy is a speed-up, never a condition: past its bound, or with a temporary folder that
+    # cannot take it (a full tmpfs), the passes decompress the file again, and no copy is left.
+    from bogiemon.drivers import recording_csv
+
+    time_s, accel = samples()
+    write_csv_recording(tmp_path / "r.csv", time_s, accel)
+    write_csv_recording(tmp_path / "r.csv.gz", time_s, accel)
+    expected = read_csv_recording(tmp_path / "r.csv")
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))
+    if why == "over-the-bound":
+        monkeypatch.setattr(recording_csv, "MAX_COPY_BYTES", 1000)
+    else:
+        real_open = Path.open
+
+        class Full(io.BytesIO):
+            def write(self, data: bytes) -> int:  # type: ignore[override]
+                raise OSError(28, "No space left on device")
+
+        def opened(self: Path, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+            return Full() if self.name == "recording.csv" and "x" in mode else real_open(self, mode, *args, **kwargs)
+
+        monkeypatch.setattr(Path, "open", opened)
+    got = read_csv_recording(tmp_path / "r.csv.gz")
+    np.testing.assert_array_equal(got.time_s, expected.time_s)
+    np.testing.assert_array_equal(got.accel_mps2, expected.accel_mps2)
+    assert list(temporary.iterdir()) == []  # nothing left behind
