@@ -247,9 +247,14 @@ class _CountedTrcReader(can.TRCReader):
     it uncounted), so that the line is counted and skipped like any other log's."""
 
     def _parse_line(self, line: str) -> can.Message | None:
-        message = super()._parse_line(line)
         stripped = line.strip()
-        if message is None and stripped and not stripped.startswith(";"):
+        if not stripped:
+            # No line: what _extract_header gives at the end of the file. Parsed, it fails where
+            # the header's columns lack one (KeyError) before any line is read: a reader resumed
+            # after it would fail on it again, forever.
+            return None
+        message = super()._parse_line(line)
+        if message is None and not stripped.startswith(";"):
             raise ValueError(f"not a frame: {one_line(stripped)}")
         return message
 
