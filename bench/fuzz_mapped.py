@@ -9,6 +9,8 @@ m/s^2 (within the rounding of its text); blocks at finite times; the peak RSS bo
 
 from __future__ import annotations
 
+import csv
+import io
 import random
 
 import numpy as np
@@ -53,7 +55,7 @@ def generate(rng: random.Random) -> fuzz_core.Input:
             return {"file": m.bytes(text.encode()), "mapping": [time_name, *channels], "time_unit": str(time_unit), "unit": str(unit),
                     "n": None, "max_block_s": 1.0}  # fmt: skip
     return {"file": text.encode(), "mapping": [time_name, *channels], "time_unit": str(time_unit), "unit": str(unit),
-            "n": n if valid else None, "max_block_s": rng.choice((1.0, 0.1))}  # fmt: skip
+            "n": n if valid else None, "max_block_s": rng.choice((1.0, 0.1)), "delimiter": delimiter}  # fmt: skip
 
 
 def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
@@ -61,7 +63,7 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     path.write_bytes(data["file"])
     time_name, *channels = data["mapping"]
     columns = ColumnMap(time_name, TimeUnit(data["time_unit"]), tuple(ChannelColumn(f"a{i + 1}", c) for i, c in enumerate(channels)), AccelUnit(data["unit"]))
-    samples = []
+    samples: list[np.ndarray] = []
     with PeakRss() as peak:
         try:
             source = RecordingReplaySource(path, rate=0.0, max_block_s=data["max_block_s"], columns=columns)
@@ -75,6 +77,10 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
                     block = source.read(1.0)
                 except EndOfStream:
                     break
+                except RecordingError as exc:
+                    if data["n"] is not None:
+                        return f"rejected a valid recording after {sum(len(a) for a in samples)} samples: {exc}"
+                    raise
                 if block is not None:
                     if not np.isfinite(block.start_s):
                         return f"a block at {block.start_s!r}"
@@ -92,6 +98,17 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     got = np.concatenate(samples) if samples else np.empty((0, 3))
     if got.shape[0] != data["n"]:
         return f"delivered {got.shape[0]} samples of the {data['n']} written"
+    return _check_values(data, columns, got)
+
+
+def _check_values(data: fuzz_core.Input, columns: ColumnMap, got: np.ndarray) -> fuzz_core.Verdict:
+    """The samples delivered are the file's cells of the mapped columns, in m/s^2 (the csv module's reading)."""
+    rows = list(csv.reader(io.StringIO(data["file"].decode()), delimiter=data["delimiter"]))
+    names = rows[0]
+    picks = [names.index(c.column) for c in columns.channels]
+    expected = np.array([[float(row[i]) for i in picks] for row in rows[1:] if row], dtype=np.float64) * columns.unit.to_mps2
+    if not np.allclose(got, expected, rtol=1e-12, atol=0.0):
+        return f"samples differ from the file's cells in m/s^2: first at row {int(np.flatnonzero(~np.isclose(got, expected, rtol=1e-12, atol=0.0).all(axis=1))[0])}"
     return None
 
 
