@@ -9,8 +9,8 @@ with cantools' decode_message: the decoder's counters must equal its counts, eve
 sample must be one it decoded, in order, and a block never bridges a counter jump (hub).
 
 The log targets write such frames with python-can's own writers (.log as candump -L, .asc,
-.blf), damage the files (lines, fields, bytes) and replay them through open_replay as `replay`
-does; every intact frame line of a .log or .asc must be decoded or counted as bad, never
+.blf, PEAK .trc, python-can's .csv), damage the files (lines, fields, bytes) and replay them through open_replay as `replay`
+does; every intact frame line of a .log, .asc, .trc or .csv must be decoded or counted as bad, never
 silently dropped, and the blocks must carry plausible, finite times.
 """
 
@@ -334,6 +334,8 @@ def write_log(frames: list[Frame], suffix: str) -> bytes:
             msg.channel = "can0" if suffix == ".log" else 0
             writer.on_message_received(msg)
     raw = path.read_bytes()
+    if suffix == ".trc":  # its header names the file written: the worker's scratch folder
+        raw = raw.replace(str(path).encode(), b"run.trc")
     if suffix == ".asc":
         lines = raw.split(b"\n")
         lines[0] = b"date Tue Dec 01 12:00:00.000 2026"
@@ -369,15 +371,17 @@ def generate_log(suffix: str) -> Any:
             text = m.lines(text, tokens=lambda line: _mutate_line(m, line, suffix))
             raw = text.encode("utf-8", "surrogateescape")
         return {"layout": layout_name, "file": raw, "suffix": suffix, "intact_lines": wanted if suffix != ".blf" else [],
-                "header": header if suffix == ".asc" else [], "max_block_s": rng.choice((1.0, 0.1))}  # fmt: skip
+                "header": header if suffix in (".asc", ".trc", ".csv") else [], "max_block_s": rng.choice((1.0, 0.1))}  # fmt: skip
 
     return generate
 
 
 def _first_frame_line(lines: list[str], suffix: str) -> int:
-    if suffix != ".asc":
-        return 0
-    return next((i + 1 for i, line in enumerate(lines) if "Start of measurement" in line), len(lines))
+    if suffix == ".asc":
+        return next((i + 1 for i, line in enumerate(lines) if "Start of measurement" in line), len(lines))
+    if suffix == ".trc":  # a header of ';' comment lines (the file version, start time, columns)
+        return next((i for i, line in enumerate(lines) if not line.startswith(";")), len(lines))
+    return 1 if suffix == ".csv" else 0  # python-can's CSV: one header line
 
 
 def _frame_lines(lines: list[str], suffix: str, frames: list[Frame]) -> range:
@@ -440,7 +444,7 @@ def run_log(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
         return None
     text = data["file"].decode("utf-8", "surrogateescape")
     lines = [line.strip() for line in text.replace("\r\n", "\n").replace("\r", "\n").split("\n")]
-    if data["suffix"] == ".asc" and lines[: len(data["header"])] != data["header"]:
+    if lines[: len(data["header"])] != data["header"]:
         return None  # a damaged header changes how every line reads
     wanted_set = set(wanted)
     intact = sum(1 for line in lines if line in wanted_set)
@@ -457,4 +461,6 @@ TARGETS = [
     fuzz_core.Target("canlog-log", generate_log(".log"), run_log),
     fuzz_core.Target("canlog-asc", generate_log(".asc"), run_log),
     fuzz_core.Target("canlog-blf", generate_log(".blf"), run_log),
+    fuzz_core.Target("canlog-trc", generate_log(".trc"), run_log),
+    fuzz_core.Target("canlog-pycsv", generate_log(".csv"), run_log),
 ]

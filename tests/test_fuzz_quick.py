@@ -26,11 +26,13 @@ FUZZ = REPO / "bench" / "fuzz.py"
 # parser and source, the CSV reader, the CAN log readers, the config loader, the MQTT schema and the
 # listener, the publisher's outbox and the event store's reader.
 DECODERS = {"can-hub", "can-per-node", "serial-parser", "serial-source", "csv", "canlog-log", "canlog-asc", "canlog-blf",
-            "config", "mqtt-schema", "mqtt-listen", "outbox", "store"}  # fmt: skip
+            "canlog-trc", "canlog-pycsv", "config", "mqtt-schema", "mqtt-listen", "outbox", "store"}  # fmt: skip
 # What issue 27 reached: compressed and Parquet recordings, the recorder on a full disk, reloads; and
 # floods of signals at a `bogiemon run` process. One input of these is a whole file or a daemon's
 # run: their quick run is a few hundred, a dozen or a few.
-HOSTILE = {"recording-gz": 200, "recording-parquet": 200, "recorder-disk": 20, "reload": 12, "signals": 4}
+# Issue 37's formats: python-can's SQLite logs, MF4 bus logs and signals, other writers' CSV through a mapping.
+HOSTILE = {"recording-gz": 200, "recording-parquet": 200, "recorder-disk": 20, "reload": 12, "signals": 4,
+           "canlog-sqlite": 300, "mf4": 100, "recording-mapped": 300}  # fmt: skip
 TARGETS = DECODERS | set(HOSTILE)
 # The quick run takes about four minutes alone, and several times that on a busy machine (over 20
 # minutes at a load average of 25): it is waited for while its harness works (tests/waiting.py),

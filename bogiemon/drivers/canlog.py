@@ -247,9 +247,14 @@ class _CountedTrcReader(can.TRCReader):
     it uncounted), so that the line is counted and skipped like any other log's."""
 
     def _parse_line(self, line: str) -> can.Message | None:
-        message = super()._parse_line(line)
         stripped = line.strip()
-        if message is None and stripped and not stripped.startswith(";"):
+        if not stripped:
+            # No line: what _extract_header gives at the end of the file. Parsed, it fails where
+            # the header's columns lack one (KeyError) before any line is read: a reader resumed
+            # after it would fail on it again, forever.
+            return None
+        message = super()._parse_line(line)
+        if message is None and not stripped.startswith(";"):
             raise ValueError(f"not a frame: {one_line(stripped)}")
         return message
 
@@ -364,6 +369,8 @@ _SQLITE_QUERY = (
     "SELECT ts, arbitration_id, extended, remote, error, dlc, data FROM messages "
     "WHERE typeof(data) IN ('blob', 'null') AND coalesce(length(data), 0) <= 64 ORDER BY rowid"
 )
+# The longest text or blob SQLite makes of a row's value: a frame's data is 64 bytes at most.
+_SQLITE_MAX_VALUE_BYTES = 1 << 20
 _SQLITE_BAD = "SELECT count(*) FROM messages WHERE NOT (typeof(data) IN ('blob', 'null') AND coalesce(length(data), 0) <= 64)"
 
 
@@ -376,8 +383,13 @@ def _sqlite_frames(f: UntrustedFile, on_unreadable: Callable[[str], None]) -> It
     except sqlite3.Error as exc:
         raise RecordingError(f"{f.path}: not a readable SQLite log ({one_line(str(exc))})") from None
     try:
+        connection.setlimit(sqlite3.SQLITE_LIMIT_LENGTH, _SQLITE_MAX_VALUE_BYTES)
+        _check_sqlite_table(f, connection)
         bad = connection.execute(_SQLITE_BAD).fetchone()[0]
         cursor = connection.execute(_SQLITE_QUERY)
+    except RecordingError:
+        connection.close()
+        raise
     except sqlite3.Error as exc:
         connection.close()
         raise RecordingError(
@@ -385,6 +397,23 @@ def _sqlite_frames(f: UntrustedFile, on_unreadable: Callable[[str], None]) -> It
             "(ts, arbitration_id, extended, remote, error, dlc, data)"
         ) from None
     return _sqlite_batches(f, connection, cursor, int(bad), on_unreadable)
+
+
+def _check_sqlite_table(f: UntrustedFile, connection: sqlite3.Connection) -> None:
+    """Refuse a `messages` that is not a table of stored rows, as python-can's writer makes it: a
+    view (its query may never end: a recursive one), a virtual table, or columns computed when
+    read (a generated blob of hundreds of MiB per row). Reading those reads no file."""
+    found = connection.execute("SELECT type, sql FROM sqlite_master WHERE name = 'messages'").fetchone()
+    if found is None:
+        return  # the query names what is missing
+    kind, sql = found
+    computed = [row[1] for row in connection.execute("PRAGMA table_xinfo(messages)") if row[6] != 0]
+    if kind != "table" or str(sql or "").lstrip().upper().startswith("CREATE VIRTUAL") or computed:
+        what = f"its column(s) {', '.join(map(str, computed))} computed when read" if kind == "table" and computed else f"its messages a {'virtual table' if kind == 'table' else kind}"
+        raise RecordingError(
+            f"{f.path}: not a python-can SQLite log ({one_line(what)}): expected its table 'messages' of stored rows "
+            "(ts, arbitration_id, extended, remote, error, dlc, data)"
+        )
 
 
 def _sqlite_batches(f: UntrustedFile, connection: sqlite3.Connection, cursor: sqlite3.Cursor, bad: int,

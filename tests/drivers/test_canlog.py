@@ -250,3 +250,38 @@ def test_an_mf4_whose_zipped_blocks_inflate_past_its_size_is_refused_before_infl
     path.write_bytes(bytes(body) + dz)
     with pytest.raises(RecordingError, match=r"bomb.mf4: a zipped data block at byte 64 inflates to 1 GiB from 16 bytes"):
         open_replay(path, rate=0, layout=HUB, fs_hz=FS_HZ)
+
+
+def test_a_trc_whose_columns_header_lacks_the_type_counts_every_line_and_ends(tmp_path: Path) -> None:
+    # Found by make fuzz (canlog-trc): each line failed with KeyError 'T', and at the end of the
+    # file the resumed reader failed on no line at all, again and again.
+    path = tmp_path / "run.trc"
+    write_log(path, coded_accel(np.arange(20)))
+    path.write_text(path.read_text().replace(";$COLUMNS=N,O,T,B,I,d,R,L,D", ";$COLUMNS=N,O,TlB,I,d,R,L,D"))
+    unreadable: list[str] = []
+    frames = LogFrames(path, unreadable.append)
+    try:
+        assert sum(batch.n for batch in frames) == 0
+    finally:
+        frames.close()
+    assert len(unreadable) == 20
+    assert unreadable[0] == f"{path}: unreadable CAN log line after 0 frames, skipped: KeyError: 'T'"
+
+
+@pytest.mark.parametrize(
+    ("schema", "what"),
+    [
+        ("CREATE VIEW messages AS WITH RECURSIVE r(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM r) SELECT i * 0.002 AS ts, 256 AS "
+         "arbitration_id, 0 AS extended, 0 AS remote, 0 AS error, 8 AS dlc, zeroblob(8) AS data FROM r", "its messages a view"),
+        ("CREATE TABLE messages (ts REAL, arbitration_id INTEGER, extended INTEGER, remote INTEGER, error INTEGER, dlc INTEGER, "
+         "data BLOB GENERATED ALWAYS AS (zeroblob(999000000)) VIRTUAL)", "its column\\(s\\) data computed when read"),
+    ],
+)  # fmt: skip
+def test_a_sqlite_log_whose_messages_are_computed_when_read_is_refused(tmp_path: Path, schema: str, what: str) -> None:
+    # Found by make fuzz (canlog-sqlite): an endless recursive view kept the reader in SQLite forever.
+    path = tmp_path / "run.db"
+    with sqlite3.connect(path) as db:
+        db.execute(schema)
+    db.close()
+    with pytest.raises(RecordingError, match=rf"run.db: not a python-can SQLite log \({what}\): expected its table 'messages' of stored rows"):
+        open_replay(path, rate=0, layout=HUB, fs_hz=FS_HZ)
