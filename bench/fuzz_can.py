@@ -30,7 +30,7 @@ import cantools
 import numpy as np
 
 import fuzz_core
-from bogiemon.drivers.base import EndOfStream, HealthCounters
+from bogiemon.drivers.base import Block, EndOfStream, HealthCounters, Source
 from bogiemon.drivers.can_decode import CanFrameDecoder
 from bogiemon.drivers.candb import CanLayout, load_layout, shipped_dbc_text
 from bogiemon.drivers.replay import open_replay
@@ -419,23 +419,29 @@ def _mutate_line(m: fuzz_core.Mutator, line: str, suffix: str) -> str:
     return " ".join(fields)
 
 
-def run_log(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
-    path = ctx.fresh_dir() / f"run{data['suffix']}"
-    path.write_bytes(data["file"])
-    source = open_replay(path, 0.0, layout(data["layout"]), FS_HZ, max_block_s=data["max_block_s"])
-    blocks = []
+def drain(source: Source) -> list[Block] | str:
+    """Every block a replay source gives until its EndOfStream, or why it never ends; it is closed after."""
+    blocks: list[Block] = []
     try:
         for _ in range(100_000):
             try:
                 block = source.read(0.05)
             except EndOfStream:
-                break
+                return blocks
             if block is not None:
                 blocks.append(block)
-        else:
-            return "the replay never ends: 100 000 reads without EndOfStream"
+        return "the replay never ends: 100 000 reads without EndOfStream"
     finally:
         source.close()
+
+
+def run_log(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
+    path = ctx.fresh_dir() / f"run{data['suffix']}"
+    path.write_bytes(data["file"])
+    source = open_replay(path, 0.0, layout(data["layout"]), FS_HZ, max_block_s=data["max_block_s"])
+    blocks = drain(source)
+    if isinstance(blocks, str):
+        return blocks
     verdict = check_blocks(blocks, source.counters)
     if verdict is not None:
         return verdict

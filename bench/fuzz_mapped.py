@@ -16,7 +16,7 @@ import random
 import numpy as np
 
 import fuzz_core
-from fuzz_recordings import PeakRss, record_figure
+from fuzz_memory import PeakRss, memory_verdict
 from bogiemon.drivers.base import EndOfStream
 from bogiemon.drivers.columns import AccelUnit, ChannelColumn, ColumnMap, TimeUnit
 from bogiemon.drivers.recording_format import RecordingError
@@ -89,10 +89,8 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
                 return "the replay never ends: 100 000 reads without EndOfStream"
         finally:
             source.close()
-    if peak.mib is not None:
-        record_figure(ctx, "peak RSS MiB", peak.mib)
-        if peak.mib > PEAK_RSS_BOUND_MIB:
-            return f"memory beyond the bound: reading it took {peak.mib:.0f} MiB at its peak, more than {PEAK_RSS_BOUND_MIB:g} MiB"
+    if (beyond := memory_verdict(ctx, peak, PEAK_RSS_BOUND_MIB)) is not None:
+        return beyond
     if data["n"] is None:
         return None
     got = np.concatenate(samples) if samples else np.empty((0, 3))

@@ -19,8 +19,7 @@ import numpy as np
 
 import fuzz_can
 import fuzz_core
-from fuzz_recordings import PeakRss, record_figure
-from bogiemon.drivers.base import EndOfStream
+from fuzz_memory import PeakRss, memory_verdict
 from bogiemon.drivers.replay import open_replay
 
 # What one input's reading may add to the worker's resident memory (the unit's 200 MiB, less the process's own).
@@ -119,25 +118,13 @@ def generate(rng: random.Random) -> fuzz_core.Input:
 def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
     path = ctx.fresh_dir() / "run.mf4"
     path.write_bytes(data["file"])
-    blocks = []
     with PeakRss() as peak:
         source = open_replay(path, 0.0, fuzz_can.layout(data["layout"]), fuzz_can.FS_HZ, max_block_s=data["max_block_s"])
-        try:
-            for _ in range(100_000):
-                try:
-                    block = source.read(0.05)
-                except EndOfStream:
-                    break
-                if block is not None:
-                    blocks.append(block)
-            else:
-                return "the replay never ends: 100 000 reads without EndOfStream"
-        finally:
-            source.close()
-    if peak.mib is not None:
-        record_figure(ctx, "peak RSS MiB", peak.mib)
-        if peak.mib > PEAK_RSS_BOUND_MIB:
-            return f"memory beyond the bound: reading it took {peak.mib:.0f} MiB at its peak, more than {PEAK_RSS_BOUND_MIB:g} MiB"
+        blocks = fuzz_can.drain(source)
+    if isinstance(blocks, str):
+        return blocks
+    if (beyond := memory_verdict(ctx, peak, PEAK_RSS_BOUND_MIB)) is not None:
+        return beyond
     if data["bus"]:
         verdict = fuzz_can.check_blocks(blocks, source.counters)
         if verdict is None and data["n"] is not None and source.counters.frames + source.counters.bad_frames < data["n"]:

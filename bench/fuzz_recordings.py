@@ -32,9 +32,7 @@ from __future__ import annotations
 
 import bz2
 import csv
-import ctypes
 import functools
-import gc
 import gzip
 import io
 import lzma
@@ -56,6 +54,7 @@ import pyarrow.parquet as pq
 
 import fuzz_core
 import fuzz_csv
+from fuzz_memory import PeakRss, memory_verdict
 from fuzz_parquet_bytes import encode_struct, int_fields, join_parquet, move_offsets, page_headers, split_parquet
 from bogiemon.daemon.analysis import analyze_recording, open_recording
 from bogiemon.daemon.config import BogiemonConfig, parse_config
@@ -94,58 +93,6 @@ structure_checks = false
 method = "thresholds"
 """
 STEP_SLACK = 0.011  # a step may be 1 % off the file's (drivers/recording.py), and rounding
-
-
-# ---- peak resident memory of a stretch of code --------------------------------------------------
-
-
-def _status_kib(name: str) -> int:
-    text = Path("/proc/self/status").read_text()
-    found = re.search(rf"^{name}:\s+(\d+) kB", text, re.M)
-    return int(found.group(1)) if found else 0
-
-
-class PeakRss:
-    """The peak resident memory a stretch of code adds (VmHWM reset through /proc/self/clear_refs),
-    after what the allocators keep was given back; `mib` is None where the kernel cannot reset it."""
-
-    def __enter__(self) -> PeakRss:
-        gc.collect()
-        pa.default_memory_pool().release_unused()
-        _trim()
-        self.before_kib = _status_kib("VmRSS")
-        try:
-            Path("/proc/self/clear_refs").write_text("5")
-            self.resettable = True
-        except OSError:
-            self.resettable = False
-        self.mib: float | None = None
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        if self.resettable:
-            self.mib = max(0, _status_kib("VmHWM") - self.before_kib) / 1024
-
-
-@functools.cache
-def _libc() -> Any:
-    try:
-        return ctypes.CDLL("libc.so.6")
-    except OSError:
-        return None
-
-
-def _trim() -> None:
-    libc = _libc()
-    if libc is not None and hasattr(libc, "malloc_trim"):
-        libc.malloc_trim(0)
-
-
-def record_figure(ctx: fuzz_core.Context, name: str, value: float) -> None:
-    """A figure of this input for the report (bench/fuzz.py keeps each one's largest and its input)."""
-    figures = getattr(ctx, "figures", None)
-    if figures is not None:
-        figures[name] = value
 
 
 # ---- generating: .csv.gz ----------------------------------------------------------------------
@@ -707,11 +654,8 @@ def run(data: fuzz_core.Input, ctx: fuzz_core.Context) -> fuzz_core.Verdict:
                 windows = [(w.start_s, w.end_s) for w in analyze_recording(reader, analyze_config())]
             except RecordingError as exc:
                 analysed = exc
-    if peak.mib is not None:
-        record_figure(ctx, "peak RSS MiB", peak.mib)
-        bound = PEAK_RSS_BOUND_MIB[target]
-        if peak.mib > bound:
-            return f"memory beyond the bound: reading it took {peak.mib:.0f} MiB at its peak, more than {bound:g} MiB"
+    if (beyond := memory_verdict(ctx, peak, PEAK_RSS_BOUND_MIB[target])) is not None:
+        return beyond
     if wrong is not None:
         return f"replay delivered what the file does not hold: {wrong}"
     if blocks and (step := _first_bad_step(blocks, fs_hz)) is not None:
